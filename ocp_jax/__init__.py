@@ -1,0 +1,23 @@
+"""ocp_jax: optimal camera placement in 2D scenes with exact, differentiable visibility.
+
+The implementation follows A. A. Steinitz, *Optimal Camera Placement* (Berkeley MS
+thesis); equation numbers in docstrings refer to it.
+"""
+
+from . import scenes as scenes
+from ._curves import AbstractCurve as AbstractCurve
+from ._curves import BezierCurve as BezierCurve
+from ._curves import BSplineCurve as BSplineCurve
+from ._curves import Circle as Circle
+from ._curves import Ellipse as Ellipse
+from ._objectives import AbstractLocalObjective as AbstractLocalObjective
+from ._objectives import Foreshortened as Foreshortened
+from ._objectives import LocalObjective as LocalObjective
+from ._objectives import VisibleLength as VisibleLength
+from ._scene import Scene as Scene
+from ._visibility import VisibilityOptions as VisibilityOptions
+from ._visibility import VisibleIntervals as VisibleIntervals
+from ._visibility import visibility as visibility
+from ._visibility import visible_intervals as visible_intervals
+
+__version__ = "0.1.0"

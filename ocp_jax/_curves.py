@@ -1,0 +1,365 @@
+"""Closed parametric curves x: [0, 1) -> R^2 (the thesis's objects, Sec. 2.1).
+
+Every curve gives its position x(t) and the derivatives x'(t), x''(t) (Eq. 2.2) for any
+array of parameters t, and the parameters where it is less smooth than C-infinity
+(`breakpoints`: B-spline knots, the seam of a Bezier curve). All of them are equinox
+Modules whose array fields are pytree leaves, so every quantity derived from them is
+differentiable with respect to the curve's parameters too.
+"""
+
+import abc
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._vec import Vec, add, scale
+
+__all__ = ["AbstractCurve", "BezierCurve", "BSplineCurve", "Circle", "Ellipse"]
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _is_concrete(*arrays) -> bool:
+    return not any(isinstance(a, jax.core.Tracer) for a in arrays)
+
+
+def _as_points(points, name: str, min_count: int) -> Array:
+    points = jnp.asarray(points)
+    if not jnp.issubdtype(points.dtype, jnp.floating):
+        points = points.astype(jnp.result_type(float))
+    if points.ndim != 2 or points.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (n, 2), got {points.shape}.")
+    if points.shape[0] < min_count:
+        raise ValueError(
+            f"{name} needs at least {min_count} control points, got {points.shape[0]}."
+        )
+    if _is_concrete(points) and not np.all(np.isfinite(np.asarray(points))):
+        raise ValueError(f"{name} contains NaN or inf; every coordinate must be finite.")
+    return points
+
+
+def _powers(t: Array, degree: int) -> list[Array]:
+    """[1, t, t^2, ..., t^degree] built by products (t**0 has a NaN derivative at 0)."""
+    out = [jnp.ones_like(t)]
+    for _ in range(degree):
+        out.append(out[-1] * t)
+    return out
+
+
+def _bernstein_combination(tp, sp, degree: int, points: Array) -> Vec:
+    """sum_i C(n,i) t^i (1-t)^(n-i) points[i] from precomputed powers, as an explicit sum
+    (XLA's CPU dot is slow for such small shapes)."""
+    x = y = 0.0
+    for i in range(degree + 1):
+        basis = math.comb(degree, i) * tp[i] * sp[degree - i]
+        x = x + basis * points[i, 0]
+        y = y + basis * points[i, 1]
+    return Vec(x, y)
+
+
+class AbstractCurve(eqx.Module):
+    """A closed, regular, twice differentiable curve x: [0, 1) -> R^2 (Eq. 2.1).
+
+    Subclasses implement `derivatives`; everything else derives from it.
+    """
+
+    @abc.abstractmethod
+    def components(self, t: Float[Array, "*shape"]) -> tuple[Vec, Vec, Vec]:
+        """(x(t), x'(t), x''(t)) as `Vec`s of arrays shaped like t (the engine's layout).
+
+        At t = 1 the left limits are returned (a closed curve has x(1) = x(0)).
+        """
+
+    def derivatives(
+        self, t: Float[ArrayLike, "*shape"]
+    ) -> tuple[Float[Array, "*shape 2"], Float[Array, "*shape 2"], Float[Array, "*shape 2"]]:
+        """(x(t), x'(t), x''(t)), each of shape `t.shape + (2,)`."""
+        return tuple(v.stack() for v in self.components(jnp.asarray(t, self.dtype)))
+
+    @property
+    def dtype(self):
+        return jnp.result_type(*jax.tree.leaves(self))
+
+    @abc.abstractmethod
+    def breakpoints(self) -> Float[Array, " b"]:
+        """Parameters in [0, 1) where x'' may jump; always includes the seam t = 0."""
+
+    def __call__(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
+        return self.derivatives(t)[0]
+
+    def tangent(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
+        """x'(t)."""
+        return self.derivatives(t)[1]
+
+    def normal(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
+        """n(t) = [[0, -1], [1, 0]] x'(t) (Eq. 2.3): outward for a clockwise curve."""
+        dx = self.tangent(t)
+        return jnp.stack([-dx[..., 1], dx[..., 0]], -1)
+
+
+def _check_regular(curve: AbstractCurve, name: str) -> None:
+    """Concrete check that x'(t) never vanishes (a regular parametrisation)."""
+    t = jnp.linspace(0.0, 1.0, 257)
+    x, dx, _ = curve.derivatives(t)
+    speed = np.linalg.norm(np.asarray(dx), axis=-1)
+    size = np.ptp(np.asarray(x), axis=0).max()
+    if not np.all(speed > 1e-9 * max(size, 1e-300)):
+        raise ValueError(
+            f"{name} is not regular: x'(t) vanishes (the curve stops or degenerates to a "
+            "point). Move the control points apart."
+        )
+
+
+class BezierCurve(AbstractCurve):
+    """Closed Bezier curve of degree n (Eq. 5.4): x(t) = sum_i C(n,i) (1-t)^(n-i) t^i P_i.
+
+    Derivatives use the standard forms (the thesis's Eqs. 5.5, 5.6 are misprinted):
+    x' = n sum_i B_{i,n-1}(t) (P_{i+1} - P_i), x'' = n(n-1) sum_i B_{i,n-2}(t)(P_{i+2} - 2P_{i+1} + P_i).
+
+    A closed curve needs P_0 == P_n. At the seam t = 0 the tangent directions must agree
+    (no corner: the visibility events of a smooth curve would miss one); `seam_continuity`
+    tells whether the curve is C1 or C2 there. `BezierCurve.closed_c2` builds a curve that
+    is C2 at the seam from free points.
+
+    **Arguments:**
+    - `control_points`: shape (n + 1, 2), n >= 3, first == last.
+    """
+
+    control_points: Float[Array, "n 2"]
+
+    def __init__(self, control_points: Float[ArrayLike, "n 2"]):
+        self.control_points = _as_points(control_points, "BezierCurve control_points", 4)
+
+    def __check_init__(self):
+        p = self.control_points
+        if not _is_concrete(p):
+            return
+        p = np.asarray(p)
+        scale = max(np.ptp(p, axis=0).max(), 1e-300)
+        if np.abs(p[0] - p[-1]).max() > 1e-9 * scale:
+            raise ValueError(
+                "BezierCurve must be closed: the first control point "
+                f"{p[0].tolist()} must equal the last {p[-1].tolist()}. Append the first "
+                "point at the end, or build it with BezierCurve.closed_c2(points)."
+            )
+        start, end = p[1] - p[0], p[-1] - p[-2]
+        cross = start[0] * end[1] - start[1] * end[0]
+        if (
+            np.dot(start, end) <= 0
+            or abs(cross) > 1e-7 * np.linalg.norm(start) * np.linalg.norm(end)
+        ):
+            raise ValueError(
+                "BezierCurve has a corner at the seam t = 0: P1 - P0 and Pn - P(n-1) must "
+                "point the same way. Use BezierCurve.closed_c2(points) for a curve that is "
+                "C2 at the seam."
+            )
+        _check_regular(self, "BezierCurve")
+
+    @property
+    def degree(self) -> int:
+        return self.control_points.shape[0] - 1
+
+    @classmethod
+    def closed_c2(cls, points: Float[ArrayLike, "m 2"]) -> "BezierCurve":
+        """A closed Bezier curve that is C2 at the seam, from m >= 3 free points.
+
+        `points = [S, Q_2, ..., Q_{n-2}]`: S is the seam point P_0 = P_n and the Q are the
+        inner control points P_2..P_{n-2} (degree n = m + 2). The two points next to the
+        seam are solved for: P_1 = S + (Q_2 - Q_{n-2})/4, P_{n-1} = S - (Q_2 - Q_{n-2})/4,
+        which makes x'(0) = x'(1) and x''(0) = x''(1).
+        """
+        points = _as_points(points, "BezierCurve.closed_c2 points", 3)
+        seam, inner = points[0], points[1:]
+        offset = (inner[0] - inner[-1]) / 4.0
+        full = jnp.concatenate(
+            [seam[None], (seam + offset)[None], inner, (seam - offset)[None], seam[None]]
+        )
+        return cls(full)
+
+    def seam_continuity(self) -> int:
+        """Parametric continuity at the seam: 2 (C2), 1 (C1) or 0 (only G1)."""
+        p = np.asarray(self.control_points)
+        scale = max(np.ptp(p, axis=0).max(), 1e-300) * 1e-9
+        if np.abs((p[1] - p[0]) - (p[-1] - p[-2])).max() > scale:
+            return 0
+        if np.abs((p[2] - 2 * p[1] + p[0]) - (p[-1] - 2 * p[-2] + p[-3])).max() > scale:
+            return 1
+        return 2
+
+    def components(self, t):
+        p = self.control_points
+        n = p.shape[0] - 1
+        d1 = n * (p[1:] - p[:-1])
+        d2 = (n - 1) * (d1[1:] - d1[:-1])
+        tp, sp = _powers(t, n), _powers(1.0 - t, n)
+        return (
+            _bernstein_combination(tp, sp, n, p),
+            _bernstein_combination(tp, sp, n - 1, d1),
+            _bernstein_combination(tp, sp, n - 2, d2),
+        )
+
+    def breakpoints(self):
+        return jnp.zeros((1,), self.control_points.dtype)
+
+
+def _uniform_bspline_blending(degree: int) -> np.ndarray:
+    """Coefficients W (p+1, p+1): on one knot span the weight of P_{j-p+s} is
+    sum_k W[s, k] tau^k, tau in [0, 1) (the cardinal B-spline N_p on piece p - s)."""
+    from numpy.polynomial import Polynomial as Poly
+
+    pieces = [Poly([1.0])]  # N_0 on [0, 1)
+    for p in range(1, degree + 1):
+        new = []
+        for m in range(p + 1):  # piece m of N_p, u = m + tau
+            piece = Poly([0.0])
+            if m <= p - 1:
+                piece = piece + Poly([m / p, 1.0 / p]) * pieces[m]
+            if m >= 1:
+                piece = piece + Poly([(p + 1 - m) / p, -1.0 / p]) * pieces[m - 1]
+            new.append(piece)
+        pieces = new
+    w = np.zeros((degree + 1, degree + 1))
+    for s in range(degree + 1):
+        c = pieces[degree - s].coef
+        w[s, : len(c)] = c
+    return w
+
+
+class BSplineCurve(AbstractCurve):
+    """Periodic uniform B-spline of degree p >= 2 with n > p control points.
+
+    With u = n t: x(t) = sum_i P_i sum_m N_p(u - i + m n), N_p the cardinal B-spline on
+    [0, p + 1]. It is C^(p-1) everywhere; the knots t = j/n are its breakpoints.
+
+    **Arguments:**
+    - `control_points`: shape (n, 2), not repeated at the end (the curve is periodic).
+    - `degree`: polynomial degree p (static), default 3.
+    """
+
+    control_points: Float[Array, "n 2"]
+    degree: int = eqx.field(static=True)
+
+    def __init__(self, control_points: Float[ArrayLike, "n 2"], degree: int = 3):
+        if int(degree) != degree or degree < 2:
+            raise ValueError(f"BSplineCurve degree must be an integer >= 2, got {degree}.")
+        self.degree = int(degree)
+        self.control_points = _as_points(
+            control_points, "BSplineCurve control_points", max(self.degree + 1, 3)
+        )
+
+    def __check_init__(self):
+        if _is_concrete(self.control_points):
+            _check_regular(self, "BSplineCurve")
+
+    def components(self, t):
+        p = self.control_points
+        n, deg = p.shape[0], self.degree
+        u = t * n
+        span = jnp.floor(u)
+        tau = u - span
+        first = span.astype(jnp.int32) - deg
+        local = [Vec.of(p[(first + s) % n]) for s in range(deg + 1)]
+        w = _uniform_bspline_blending(deg)
+        dw = w[:, 1:] * np.arange(1, deg + 1) * n
+        ddw = dw[:, 1:] * np.arange(1, deg) * n
+        powers = _powers(tau, deg)
+
+        def combine(coef):
+            # Explicit sums: XLA's CPU dot is slow for such small shapes.
+            x = y = 0.0
+            for s in range(deg + 1):
+                weight = sum(float(coef[s, k]) * powers[k] for k in range(coef.shape[1]))
+                x = x + weight * local[s].x
+                y = y + weight * local[s].y
+            return Vec(x, y)
+
+        return combine(w), combine(dw), combine(ddw)
+
+    def breakpoints(self):
+        n = self.control_points.shape[0]
+        return jnp.arange(n, dtype=self.control_points.dtype) / n
+
+
+class Circle(AbstractCurve):
+    """x(t) = c + r (cos 2 pi t, sin 2 pi t), counter-clockwise."""
+
+    center: Float[Array, "2"]
+    radius: Float[Array, ""]
+
+    def __init__(self, center: Float[ArrayLike, "2"], radius: Float[ArrayLike, ""]):
+        self.center = jnp.asarray(center, jnp.result_type(center, float))
+        self.radius = jnp.asarray(radius, self.center.dtype)
+
+    def __check_init__(self):
+        if self.center.shape != (2,) or self.radius.shape != ():
+            raise ValueError("Circle needs center of shape (2,) and a scalar radius.")
+        if _is_concrete(self.center, self.radius):
+            if not (np.all(np.isfinite(self.center)) and np.isfinite(self.radius)):
+                raise ValueError("Circle center and radius must be finite.")
+            if not self.radius > 0:
+                raise ValueError(f"Circle radius must be positive, got {float(self.radius)}.")
+
+    def components(self, t):
+        angle = _TWO_PI * t
+        c, s = jnp.cos(angle), jnp.sin(angle)
+        r = self.radius
+        w = _TWO_PI * r
+        return (
+            Vec(self.center[0] + r * c, self.center[1] + r * s),
+            Vec(-w * s, w * c),
+            Vec(-_TWO_PI * w * c, -_TWO_PI * w * s),
+        )
+
+    def breakpoints(self):
+        return jnp.zeros((1,), self.center.dtype)
+
+
+class Ellipse(AbstractCurve):
+    """x(t) = c + R(angle) (a cos 2 pi t, b sin 2 pi t), counter-clockwise."""
+
+    center: Float[Array, "2"]
+    semi_axes: Float[Array, "2"]
+    angle: Float[Array, ""]
+
+    def __init__(
+        self,
+        center: Float[ArrayLike, "2"],
+        semi_axes: Float[ArrayLike, "2"],
+        angle: Float[ArrayLike, ""] = 0.0,
+    ):
+        self.center = jnp.asarray(center, jnp.result_type(center, float))
+        self.semi_axes = jnp.asarray(semi_axes, self.center.dtype)
+        self.angle = jnp.asarray(angle, self.center.dtype)
+
+    def __check_init__(self):
+        if self.center.shape != (2,) or self.semi_axes.shape != (2,) or self.angle.shape:
+            raise ValueError("Ellipse needs center (2,), semi_axes (2,) and a scalar angle.")
+        if _is_concrete(self.center, self.semi_axes, self.angle):
+            leaves = np.concatenate([self.center, self.semi_axes, [self.angle]])
+            if not np.all(np.isfinite(leaves)):
+                raise ValueError("Ellipse parameters must be finite.")
+            if not np.all(self.semi_axes > 0):
+                raise ValueError(f"Ellipse semi_axes must be positive, got {self.semi_axes}.")
+
+    def components(self, t):
+        angle = _TWO_PI * t
+        c, s = jnp.cos(angle), jnp.sin(angle)
+        a, b = self.semi_axes[0], self.semi_axes[1]
+        cos, sin = jnp.cos(self.angle), jnp.sin(self.angle)
+
+        def rotate(u, v):
+            return Vec(cos * u - sin * v, sin * u + cos * v)
+
+        local = rotate(a * c, b * s)
+        return (
+            add(Vec(self.center[0], self.center[1]), local),
+            scale(_TWO_PI, rotate(-a * s, b * c)),
+            scale(-(_TWO_PI**2), local),
+        )
+
+    def breakpoints(self):
+        return jnp.zeros((1,), self.center.dtype)

@@ -1,0 +1,150 @@
+"""Occlusion events of one camera (thesis Sec. 5.1.2, 5.2): the parameter values where
+the visibility of a curve can change.
+
+- Tangency times (Eqs. 5.21, 5.33): roots of F(t) = n(t) . (x(t) - C), written here as
+  cross(x'(t), x(t) - C); the line of sight grazes the curve.
+- Shadow times (Eqs. 5.22, 5.34): for every tangency point P = x_j(T), roots of
+  F(s) = cross(P - C, x_i(s) - C) beyond P (the grazing ray hits curve i behind P).
+- Crossover times: with several cameras and a camera-dependent q, where two cameras'
+  q are equal, so that max_c q_c is smooth between events.
+
+Each root carries the implicit-function derivative (see `_roots.py`); for tangency and
+shadow times with respect to the camera it equals Eqs. 5.28/5.32 and 5.17/5.20.
+"""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+from ._roots import grid_brackets, solve_roots
+from ._vec import Vec, cross, dot, norm, sub
+
+
+class Samples(NamedTuple):
+    """Every curve sampled on the grid t_0 = 0 < ... < t_N = 1 (camera independent);
+    `x`, `dx`, `ddx` have arrays of shape (m, N + 1)."""
+
+    t: Float[Array, " n1"]
+    x: Vec
+    dx: Vec
+    ddx: Vec
+
+
+def sample(scene, cells: int) -> Samples:
+    t = jnp.linspace(0.0, 1.0, cells + 1, dtype=scene.dtype)
+    return materialize(Samples(t, *scene.components(jnp.broadcast_to(t, (len(scene), cells + 1)))))
+
+
+@jax.custom_jvp
+def materialize(tree):
+    """Identity that makes XLA compute `tree` once and store it.
+
+    XLA duplicates cheap elementwise producers (a curve evaluation is ~100 multiply-adds)
+    into every consumer fusion, so a curve sampled once and broadcast against many rays
+    would be re-evaluated per element. `optimization_barrier` does not survive the CPU
+    pipeline; a while loop whose trip count depends on the data (one trip) does.
+    """
+    leaves = jax.tree.leaves(tree)
+    start = jnp.isnan(leaves[-1].ravel()[0]).astype(jnp.int32)  # 0 unless NaN
+
+    def body(carry):
+        i, values = carry
+        return i + 1, jax.tree.map(lambda v: jnp.where(i > 1, v + v, v), values)
+
+    return jax.lax.while_loop(lambda c: c[0] < 1, body, (start, tree))[1]
+
+
+@materialize.defjvp
+def _materialize_jvp(primals, tangents):
+    return materialize(*primals), tangents[0]
+
+
+class Roots(NamedTuple):
+    t: Float[Array, "*batch r"]  # padded with 1.0 (the end of [0, 1))
+    valid: Bool[Array, "*batch r"]
+    count: Int[Array, "*batch"]  # roots found before packing into the budget
+
+
+def tangency_function(t, args):
+    """F(t) = cross(x'(t), x(t) - C), F'(t) = cross(x''(t), x(t) - C)."""
+    scene, camera = args
+    x, dx, ddx = scene.components(t)
+    sight = sub(x, camera)
+    return cross(dx, sight), cross(ddx, sight), norm(dx) * norm(sight)
+
+
+def shadow_function(s, args):
+    """F(s) = cross(P - C, x(s) - C): x(s) on the line of sight through P."""
+    scene, camera, point = args
+    x, dx, _ = scene.components(s)
+    ray = sub(point, camera)
+    sight = sub(x, camera)
+    return cross(ray, sight), cross(ray, dx), norm(ray) * norm(sight)
+
+
+def crossover_function(t, args):
+    """F(t) = q(x, x', C_a) - q(x, x', C_b) and its t-derivative (chain rule via jvp)."""
+    scene, camera_a, camera_b, objective = args
+    x, dx, ddx = scene.components(t)
+
+    def difference(x, dx):
+        return objective.evaluate(x, dx, camera_a) - objective.evaluate(x, dx, camera_b)
+
+    value, slope = jax.jvp(difference, (x, dx), (dx, ddx))
+    scale = jnp.abs(objective.evaluate(x, dx, camera_a)) + jnp.abs(
+        objective.evaluate(x, dx, camera_b)
+    )
+    return value, slope, scale
+
+
+def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations: int) -> Roots:
+    sight = sub(samples.x, jax.lax.stop_gradient(camera))
+    values = cross(samples.dx, sight)[:, None]
+    slopes = cross(samples.ddx, sight)[:, None]
+    brackets = grid_brackets(samples.t, values, slopes, budget)
+    t, valid = solve_roots(tangency_function, (scene, camera), brackets, iterations, 1.0)
+    return Roots(t, valid, brackets.count)
+
+
+def shadow_times(
+    scene,
+    camera: Vec,
+    samples: Samples,
+    points: Vec,
+    point_valid: Bool[Array, " l"],
+    budget: int,
+    iterations: int,
+) -> Roots:
+    """Shadow times on every curve of the rays from `camera` through `points` (the
+    tangency points of all curves, arrays of shape (l,)), keeping hits beyond the point."""
+    ray = materialize(jax.lax.stop_gradient(sub(points, camera))).map(lambda a: a[None, :, None])
+    sight = sub(samples.x, jax.lax.stop_gradient(camera)).map(lambda a: a[:, None])
+    values = cross(ray, sight)  # (m, l, N + 1)
+    slopes = cross(ray, samples.dx.map(lambda a: a[:, None]))
+    depth = dot(ray, sight) / dot(ray, ray)
+    beyond = (depth[..., :-1] > 1.0) | (depth[..., 1:] > 1.0)
+    keep = beyond & point_valid[None, :, None]
+    brackets = grid_brackets(samples.t, values, slopes, budget, keep)
+    cells = samples.t.shape[0] - 1
+    line = brackets.source // (2 * cells)  # (m, r): which ray each root belongs to
+    args = (scene, camera, points.map(lambda a: a[line]))
+    s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
+    return Roots(s, valid, brackets.count)
+
+
+def crossover_times(
+    scene, camera_a: Vec, camera_b: Vec, objective, samples: Samples, budget: int, iterations: int
+) -> Roots:
+    # Values on the grid from the sampled derivatives (no new curve evaluations).
+    frozen, ca, cb = jax.lax.stop_gradient((objective, camera_a, camera_b))
+
+    def difference(x, dx):
+        return frozen.evaluate(x, dx, ca) - frozen.evaluate(x, dx, cb)
+
+    values, slopes = jax.jvp(difference, (samples.x, samples.dx), (samples.dx, samples.ddx))
+    brackets = grid_brackets(samples.t, values[:, None], slopes[:, None], budget)
+    args = (scene, camera_a, camera_b, objective)
+    t, valid = solve_roots(crossover_function, args, brackets, iterations, 1.0)
+    return Roots(t, valid, brackets.count)

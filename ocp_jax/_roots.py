@@ -1,0 +1,176 @@
+"""Vectorised root finding on a grid, with exact implicit-function derivatives.
+
+Every occlusion event is a root of a smooth function F(t; theta) of the curve parameter t
+(theta: cameras, scene, line of sight). We find them in three static-shape steps:
+
+1. **Brackets.** F and dF/dt are known at the grid nodes t_0 < ... < t_N. In each cell the
+   cubic Hermite interpolant of (F, F') is split at its extremum when F' changes sign in
+   the cell, so a pair of roots closer together than a cell (a near-double root) gives two
+   brackets; a plain sign change gives one.
+2. **Compaction.** The bracket slots that hold a root are packed into a static budget of
+   R slots (`jnp.nonzero(..., size=R)`); the true count is returned so that an exceeded
+   budget is reported, never silently truncated.
+3. **Refinement.** Safeguarded Newton in each bracket (bisection when a step would leave
+   it; a step landing exactly on an end is accepted), a fixed number of iterations.
+
+`implicit_root` then attaches the derivative of the implicit function theorem: for
+F(t*(theta); theta) = 0, dt* = -(dF/dtheta . dtheta) / (dF/dt) (the general form of the
+thesis's Eqs. 5.20 and 5.32), for tangents in any argument of F.
+"""
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float, Int
+
+
+class Brackets(NamedTuple):
+    """Packed root brackets, shape (..., R) each."""
+
+    lo: Float[Array, "*batch r"]
+    hi: Float[Array, "*batch r"]
+    guess: Float[Array, "*batch r"]
+    sign_lo: Float[Array, "*batch r"]  # sign of F at lo
+    turning: Bool[Array, "*batch r"]  # bracket ends are interpolated (near-double root)
+    candidate: Bool[Array, "*batch r"]
+    source: Int[Array, "*batch r"]  # flat index into the (lines, cells, 2) slots
+    count: Int[Array, "*batch"]  # slots that held a root, before packing
+
+
+def _safe(x):
+    return jnp.where(x == 0, 1.0, x)
+
+
+def hermite_extremum(f0, f1, d0, d1, h):
+    """Extremum of the cubic Hermite interpolant on each cell, as a fraction s in [0, 1]
+    of the cell, and the interpolant's value there. Where F' does not change sign in the
+    cell, s = 1 and the value is f1."""
+    a1 = h * d0
+    a2 = -3.0 * f0 - 2.0 * h * d0 + 3.0 * f1 - h * d1
+    a3 = 2.0 * f0 + h * d0 - 2.0 * f1 + h * d1
+    # p'(s) = A s^2 + B s + c has exactly one root in (0, 1) when d0 d1 < 0.
+    A, B, c = 3.0 * a3, 2.0 * a2, a1
+    disc = jnp.maximum(B * B - 4.0 * A * c, 0.0)
+    q = -0.5 * (B + jnp.where(B >= 0, 1.0, -1.0) * jnp.sqrt(disc))
+    r_small = c / _safe(q)
+    r_large = q / _safe(A)
+    s = jnp.where((r_small >= 0) & (r_small <= 1), r_small, r_large)
+    turning = d0 * d1 < 0
+    s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)
+    value = ((a3 * s + a2) * s + a1) * s + f0
+    return s, jnp.where(turning, value, f1), turning
+
+
+def grid_brackets(
+    t_nodes: Float[Array, " n1"],
+    values: Float[Array, "*batch lines n1"],
+    slopes: Float[Array, "*batch lines n1"],
+    budget: int,
+    keep: Bool[Array, "*batch lines n"] | None = None,
+) -> Brackets:
+    """Brackets of the roots of F on every line (a family of functions sharing a grid),
+    packed over lines and cells into `budget` slots per batch element.
+
+    **Arguments:**
+    - `t_nodes`: the grid t_0 < ... < t_N.
+    - `values`, `slopes`: F and dF/dt at the nodes.
+    - `budget`: R, the number of root slots.
+    - `keep`: optional mask of the cells that may hold wanted roots.
+    """
+    h = jnp.diff(t_nodes)
+    f0, f1 = values[..., :-1], values[..., 1:]
+    d0, d1 = slopes[..., :-1], slopes[..., 1:]
+    s, p, turning = hermite_extremum(f0, f1, d0, d1, h)
+    lo_frac = jnp.stack([jnp.zeros_like(s), s], -1)
+    hi_frac = jnp.stack([s, jnp.ones_like(s)], -1)
+    f_lo = jnp.stack([f0, p], -1)
+    f_hi = jnp.stack([p, f1], -1)
+    has_root = (f_lo * f_hi < 0) | ((f_lo == 0) & (lo_frac == 0))
+    if keep is not None:
+        has_root = has_root & keep[..., None]
+    frac = lo_frac + (hi_frac - lo_frac) * f_lo / _safe(f_lo - f_hi)
+    frac = jnp.where(f_lo == 0, lo_frac, frac)
+    start = t_nodes[:-1, None]
+    width = h[:, None]
+    fields = (
+        start + width * lo_frac,
+        start + width * hi_frac,
+        start + width * frac,
+        jnp.sign(f_lo),
+        jnp.broadcast_to(turning[..., None], has_root.shape),
+    )
+    batch = has_root.shape[:-3]
+    flat = has_root.reshape(batch + (-1,))
+
+    def pack(mask):
+        (index,) = jnp.nonzero(mask, size=budget, fill_value=0)
+        return index
+
+    index = jnp.vectorize(pack, signature="(k)->(r)")(flat)
+    candidate = jnp.take_along_axis(flat, index, -1) & (
+        jnp.arange(budget) < flat.sum(-1, keepdims=True)
+    )
+    lo, hi, guess, sign_lo, turn = (
+        jnp.take_along_axis(jnp.broadcast_to(x, has_root.shape).reshape(batch + (-1,)), index, -1)
+        for x in fields
+    )
+    return Brackets(lo, hi, guess, sign_lo, turn, candidate, index, flat.sum(-1))
+
+
+def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
+    """Safeguarded Newton on `fn(t, args) -> (F, dF/dt, scale)` inside each bracket.
+
+    Returns the roots (no derivative attached) and whether each is a root: a candidate
+    from an exact sign change always is; one from an interpolated (near-double) bracket
+    only if |F| <= 1e3 eps scale at the end.
+    """
+    lo, hi, t = brackets.lo, brackets.hi, brackets.guess
+
+    def step(_, carry):
+        lo, hi, t = carry
+        value, slope, _ = fn(t, args)
+        same = jnp.sign(value) == brackets.sign_lo
+        lo = jnp.where(same, t, lo)
+        hi = jnp.where(same, hi, t)
+        newton = t - value / _safe(slope)
+        inside = (newton >= lo) & (newton <= hi)
+        return lo, hi, jnp.where(inside, newton, 0.5 * (lo + hi))
+
+    lo, hi, t = jax.lax.fori_loop(0, iterations, step, (lo, hi, t))
+    value, _, scale = fn(t, args)
+    eps = jnp.finfo(t.dtype).eps
+    converged = jnp.abs(value) <= 1e3 * eps * scale
+    valid = brackets.candidate & (~brackets.turning | converged)
+    return t, valid
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def implicit_root(fn, t, args):
+    """Identity on the roots t of fn(t, args)[0] = 0, with the implicit-function JVP
+    dt = -(dF/dargs . dargs) / (dF/dt) for tangents in every leaf of `args`."""
+    return t
+
+
+@implicit_root.defjvp
+def _implicit_root_jvp(fn, primals, tangents):
+    t, args = primals
+    _, dargs = tangents
+    _, dvalue = jax.jvp(lambda a: fn(t, a)[0], (args,), (dargs,))
+    slope = fn(t, args)[1]
+    # Padded (invalid) roots may sit where dF/dt = 0: keep their tangents finite.
+    slope = jnp.where(jnp.isfinite(slope) & (slope != 0), slope, 1.0)
+    return t, -dvalue / slope
+
+
+def solve_roots(fn, args, brackets: Brackets, iterations: int, fill: float):
+    """Roots of `fn` in the packed brackets, differentiable in `args`.
+
+    **Returns:** (t, valid), invalid slots set to `fill` with zero derivative.
+    """
+    t, valid = newton_in_brackets(
+        fn, jax.lax.stop_gradient(args), jax.lax.stop_gradient(brackets), iterations
+    )
+    t = implicit_root(fn, t, args)
+    return jnp.where(valid, t, fill), valid

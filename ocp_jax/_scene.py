@@ -1,0 +1,90 @@
+"""A scene: a set of closed curves (the objects), evaluated together."""
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._curves import AbstractCurve
+from ._vec import Vec
+
+__all__ = ["Scene"]
+
+
+def _structure(curve: AbstractCurve):
+    leaves, treedef = jax.tree.flatten(curve)
+    return treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves)
+
+
+class Scene(eqx.Module):
+    """The objects x_1..x_m of a scene (Sec. 2.1), as a pytree of curves.
+
+    Curves of the same type and shape are evaluated together (stacked and vmapped), so
+    a scene of many similar objects compiles to one evaluation, not one per object.
+
+    **Arguments:**
+    - `curves`: a sequence of curves (`BezierCurve`, `BSplineCurve`, `Circle`, ...).
+    """
+
+    curves: tuple[AbstractCurve, ...]
+
+    def __init__(self, curves: Sequence[AbstractCurve]):
+        if isinstance(curves, AbstractCurve):
+            curves = [curves]
+        curves = tuple(curves)
+        if not curves:
+            raise ValueError("A Scene needs at least one curve.")
+        for c in curves:
+            if not isinstance(c, AbstractCurve):
+                raise TypeError(
+                    f"Scene curves must be ocp_jax curves (BezierCurve, BSplineCurve, "
+                    f"Circle, Ellipse), got {type(c).__name__}."
+                )
+        self.curves = curves
+
+    def __len__(self) -> int:
+        return len(self.curves)
+
+    @property
+    def dtype(self):
+        return jnp.result_type(*jax.tree.leaves(self.curves))
+
+    def _groups(self) -> list[list[int]]:
+        groups: dict = {}
+        for i, c in enumerate(self.curves):
+            groups.setdefault(_structure(c), []).append(i)
+        return list(groups.values())
+
+    def _map(self, fn, *args):
+        """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
+        results are stacked along a leading curve axis."""
+        outputs, order = [], []
+        for group in self._groups():
+            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+            rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
+            outputs.append(jax.vmap(fn)(stacked, *rows))
+            order.extend(group)
+        if len(outputs) == 1:
+            return outputs[0]
+        inverse = np.argsort(np.asarray(order))
+        return jax.tree.map(lambda *xs: jnp.concatenate(xs)[inverse], *outputs)
+
+    def components(self, t: Float[Array, "m *shape"]) -> tuple[Vec, Vec, Vec]:
+        """x_i(t[i]), x_i'(t[i]), x_i''(t[i]) for every curve i (row i of `t`), as `Vec`s."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map(lambda c, tt: c.components(tt), t)
+
+    def derivatives(
+        self, t: Float[Array, "m *shape"]
+    ) -> tuple[Float[Array, "m *shape 2"], Float[Array, "m *shape 2"], Float[Array, "m *shape 2"]]:
+        """x_i(t[i]), x_i'(t[i]), x_i''(t[i]) for every curve i (row i of `t`)."""
+        return tuple(v.stack() for v in self.components(t))
+
+    def breakpoints(self) -> Float[Array, "m b"]:
+        """Each curve's breakpoints, padded with the seam 0 to a common length."""
+        points = [c.breakpoints() for c in self.curves]
+        width = max(p.shape[0] for p in points)
+        return jnp.stack([jnp.pad(p, (0, width - p.shape[0])) for p in points])

@@ -1,0 +1,309 @@
+"""The global visibility objective Q (Eq. 3.15 with l = 1) and its exact gradient.
+
+For cameras C_1..C_k and curves x_1..x_m,
+
+    Q = sum_i int_0^1 max_c [chi_i(t, C_c) q(x_i(t), x_i'(t), C_c)] ||x_i'(t)|| dt.
+
+The computation (Sec. 5.2): the events of every camera (tangency and shadow times, the
+curves' breakpoints, and crossovers of the cameras' q) cut each curve into intervals on
+which the integrand is smooth. The continuous viewability matrix V (Eq. 5.35) says, per
+interval and camera, whether the camera sees it: one test per interval of each camera's
+own partition. Gauss-Legendre quadrature on every interval then gives Q; since the
+interval ends are differentiable functions of the cameras and the scene (implicit-function
+JVPs), reverse- or forward-mode autodiff through the quadrature is exactly the Leibniz
+rule of Eq. 5.9.
+"""
+
+import itertools
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from ._events import (
+    Roots,
+    Samples,
+    crossover_times,
+    materialize,
+    sample,
+    shadow_times,
+    tangency_times,
+)
+from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
+from ._occlusion import orientation, visible_points
+from ._scene import Scene
+from ._vec import Vec, cross, dot, norm, sub
+
+__all__ = ["VisibilityOptions", "VisibleIntervals", "visibility", "visible_intervals"]
+
+
+class VisibilityOptions(eqx.Module):
+    """Static sizes of the event computation (all Python ints; a pytree with no leaves).
+
+    - `grid`: cells per curve for bracketing roots and occlusion tests. Two roots of one
+      event function closer than a cell are still separated (Hermite split), but features
+      much smaller than a cell need a finer grid.
+    - `max_tangents`, `max_shadows`: root budgets per curve and camera; `max_crossovers`:
+      per curve and pair of cameras. Exceeding one raises an error naming the option.
+    - `quadrature`: Gauss-Legendre nodes per interval (16 converge to ~1e-12).
+    - `newton_iterations`: safeguarded Newton steps per root.
+    """
+
+    grid: int = eqx.field(static=True, default=64)
+    max_tangents: int = eqx.field(static=True, default=8)
+    max_shadows: int = eqx.field(static=True, default=16)
+    max_crossovers: int = eqx.field(static=True, default=16)
+    quadrature: int = eqx.field(static=True, default=16)
+    newton_iterations: int = eqx.field(static=True, default=12)
+
+    def __check_init__(self):
+        for name in (
+            "grid",
+            "max_tangents",
+            "max_shadows",
+            "max_crossovers",
+            "quadrature",
+            "newton_iterations",
+        ):
+            value = getattr(self, name)
+            if not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"VisibilityOptions.{name} must be a positive int, got {value!r}.")
+        if self.grid < 8:
+            raise ValueError(f"VisibilityOptions.grid must be >= 8, got {self.grid}.")
+
+
+class CameraPartition(NamedTuple):
+    """One camera's events on every curve, sorted, and what it sees between them."""
+
+    events: Float[Array, "m e"]  # interval k is [events[k], events[k+1]] (events[e] := 1)
+    visible: Bool[Array, "m e"]
+    tangents: Roots
+    shadows: Roots
+
+
+def _cameras(cameras, dtype) -> Array:
+    cameras = jnp.asarray(cameras)
+    if cameras.ndim == 1:
+        cameras = cameras[None]
+    if cameras.ndim != 2 or cameras.shape[-1] != 2 or cameras.shape[0] < 1:
+        raise ValueError(
+            f"cameras must have shape (k, 2) with k >= 1 (one row per camera), got {cameras.shape}."
+        )
+    return cameras.astype(jnp.result_type(cameras.dtype, dtype, float))
+
+
+def _intervals(events: Float[Array, "m e"]):
+    ends = jnp.concatenate([events[:, 1:], jnp.ones_like(events[:, :1])], 1)
+    return events, ends
+
+
+def _camera_partition(scene, camera: Vec, samples, sense, options) -> CameraPartition:
+    iters = options.newton_iterations
+    tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
+    points = scene.components(tangents.t)[0].map(jnp.ravel)  # differentiable
+    shadows = shadow_times(
+        scene,
+        camera,
+        samples,
+        points,
+        tangents.valid.reshape(-1),
+        options.max_shadows,
+        iters,
+    )
+    events = jnp.sort(
+        jnp.concatenate([scene.breakpoints(), tangents.t, shadows.t], 1), axis=1
+    )
+    # The visibility decision carries no derivative.
+    start, end = jax.lax.stop_gradient(_intervals(events))
+    t_mid = 0.5 * (start + end)
+    x_mid, dx_mid, _ = materialize(jax.lax.stop_gradient(scene.components(t_mid)))
+    visible = visible_points(
+        jax.lax.stop_gradient(camera), samples, sense, t_mid, x_mid, dx_mid
+    )
+    return CameraPartition(events, visible, tangents, shadows)
+
+
+def _check_cameras(cameras: Vec, samples: Samples):
+    """Cameras must be finite, outside every object and off every curve (tested on the
+    grid polygon: winding number, and distance to the vertices)."""
+    rel = sub(samples.x.map(lambda a: a[None, :, :-1]), cameras.map(lambda a: a[:, None, None]))
+    nxt = rel.map(lambda a: jnp.roll(a, -1, axis=2))
+    winding = jnp.sum(jnp.arctan2(cross(rel, nxt), dot(rel, nxt)), -1) / (2 * np.pi)
+    inside = jnp.any(jnp.abs(winding) > 0.5, axis=1)
+    spacing = jnp.max(norm(samples.x.map(lambda a: jnp.diff(a, axis=1))))
+    on_curve = jnp.min(norm(rel), axis=(1, 2)) < 1e-3 * spacing
+    finite = jnp.isfinite(cameras.x) & jnp.isfinite(cameras.y)
+    return finite, inside, on_curve
+
+
+def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
+    objective = as_local_objective(objective)
+    cameras = _cameras(cameras, scene.dtype)
+    scene_sg = jax.lax.stop_gradient(scene)
+    samples = sample(scene_sg, options.grid)
+    sense = orientation(samples)
+    cameras = Vec.of(cameras)
+    partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
+        scene, cameras, samples, sense, options
+    )
+    k = cameras.x.shape[0]
+    pieces = [partitions.events[c] for c in range(k)]
+    crossovers = None
+    if k > 1 and not objective.is_constant:
+        pairs = np.array(list(itertools.combinations(range(k), 2)))
+        crossovers = jax.vmap(
+            crossover_times, in_axes=(None, 0, 0, None, None, None, None)
+        )(
+            scene,
+            cameras.map(lambda a: a[pairs[:, 0]]),
+            cameras.map(lambda a: a[pairs[:, 1]]),
+            objective,
+            samples,
+            options.max_crossovers,
+            options.newton_iterations,
+        )
+        pieces.extend(crossovers.t[p] for p in range(len(pairs)))
+    events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
+    start, end = _intervals(events)
+
+    # Viewability matrix: the camera's own interval that holds each union interval.
+    t_mid = jax.lax.stop_gradient(0.5 * (start + end))
+    own = jax.vmap(
+        jax.vmap(lambda ev, t: jnp.searchsorted(ev, t, side="right", method="compare_all") - 1),
+        in_axes=(0, None),
+    )(partitions.events, t_mid)  # (k, m, e)
+    seen = jnp.take_along_axis(partitions.visible, own, axis=-1)
+
+    nodes, weights = np.polynomial.legendre.leggauss(options.quadrature)
+    half = 0.5 * (end - start)
+    t = start[..., None] + half[..., None] * (jnp.asarray(nodes, start.dtype) + 1.0)
+    x, dx, _ = materialize(scene.components(t))
+    local = objective.evaluate(
+        x.map(lambda a: a[None]), dx.map(lambda a: a[None]), cameras.map(lambda a: a[:, None, None, None])
+    )  # (k, m, e, g)
+    best = jnp.max(jnp.where(seen[..., None], local, 0.0), axis=0)
+    value = jnp.sum(half * jnp.sum(jnp.asarray(weights, t.dtype) * best * norm(dx), -1))
+    return value, partitions, crossovers, samples, cameras
+
+
+def _budget_checks(value, partitions, crossovers, samples, cameras, options):
+    finite, inside, on_curve = _check_cameras(jax.lax.stop_gradient(cameras), samples)
+    value = eqx.error_if(
+        value,
+        ~jnp.all(finite),
+        "ocp_jax: a camera position is NaN or inf; pass finite coordinates.",
+    )
+    value = eqx.error_if(
+        value,
+        jnp.any(inside),
+        "ocp_jax: a camera lies inside an object; cameras must be outside every curve.",
+    )
+    value = eqx.error_if(
+        value,
+        jnp.any(on_curve),
+        "ocp_jax: a camera lies on a curve; move it off the object.",
+    )
+    value = eqx.error_if(
+        value,
+        ~jnp.all(jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y)),
+        "ocp_jax: the scene contains NaN or inf control points.",
+    )
+    checks = [
+        (partitions.tangents.count, options.max_tangents, "tangency times", "max_tangents"),
+        (partitions.shadows.count, options.max_shadows, "shadow times", "max_shadows"),
+    ]
+    if crossovers is not None:
+        checks.append(
+            (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")
+        )
+    for count, budget, what, name in checks:
+        value = eqx.error_if(
+            value,
+            jnp.any(count > budget),
+            f"ocp_jax: more {what} on one curve than the budget of {budget}: pass "
+            f"options=ocp.VisibilityOptions({name}=...) with a larger value.",
+        )
+    return value
+
+
+def visibility(
+    scene: Scene,
+    cameras: Float[ArrayLike, "k 2"],
+    objective: AbstractLocalObjective = Foreshortened(),
+    options: VisibilityOptions = VisibilityOptions(),
+) -> Float[Array, ""]:
+    """The global visibility objective Q of `scene` seen from `cameras` (Eq. 3.15, l = 1).
+
+    Q = sum_i int max_c [chi_i(t, C_c) q(x_i, x_i', C_c)] ||x_i'(t)|| dt: exact up to
+    floating point (events from refined roots, Gauss-Legendre on smooth intervals), and
+    differentiable with respect to the cameras, the scene's parameters and the objective's
+    parameters. Works under `jax.jit`, `jax.vmap` and `jax.grad`.
+
+    **Arguments:**
+    - `scene`: the objects.
+    - `cameras`: camera positions, shape (k, 2) (or (2,) for one camera).
+    - `objective`: local objective q (`VisibleLength()`, `Foreshortened()`, or any
+      `q(point, tangent, camera) -> scalar`).
+    - `options`: grid size and root budgets, see `VisibilityOptions`.
+
+    **Returns:** the scalar Q.
+
+    Raises (also under jit, via `equinox.error_if`) when a camera is NaN, inside an object
+    or on a curve, or when a root budget is exceeded.
+    """
+    value, partitions, crossovers, samples, cameras = _solve(scene, cameras, objective, options)
+    return _budget_checks(value, partitions, crossovers, samples, cameras, options)
+
+
+class VisibleIntervals(eqx.Module):
+    """What each camera sees: on curve i, camera c sees [start, end] where `visible`.
+
+    Arrays of shape (k, m, e) (padded: zero-length intervals at t = 1); `to_list` gives
+    merged Python intervals.
+    """
+
+    start: Float[Array, "k m e"]
+    end: Float[Array, "k m e"]
+    visible: Bool[Array, "k m e"]
+    tangent_count: Int[Array, "k m"]
+    shadow_count: Int[Array, "k m"]
+
+    def to_list(self, camera: int, curve: int) -> list[tuple[float, float]]:
+        """Merged visible parameter intervals of `curve` seen by `camera` (a visible arc
+        through the seam is split at t = 0)."""
+        start = np.asarray(self.start[camera, curve])
+        end = np.asarray(self.end[camera, curve])
+        seen = np.asarray(self.visible[camera, curve]) & (end > start)
+        merged: list[list[float]] = []
+        for a, b in zip(start[seen], end[seen]):
+            if merged and a <= merged[-1][1]:
+                merged[-1][1] = max(merged[-1][1], float(b))
+            else:
+                merged.append([float(a), float(b)])
+        return [tuple(iv) for iv in merged]
+
+
+def visible_intervals(
+    scene: Scene,
+    cameras: Float[ArrayLike, "k 2"],
+    options: VisibilityOptions = VisibilityOptions(),
+) -> VisibleIntervals:
+    """The parameter arcs of every curve that each camera sees (occlusions included).
+
+    **Returns:** a `VisibleIntervals`; `.to_list(c, i)` for plain intervals.
+    """
+    value, partitions, crossovers, samples, cameras = _solve(
+        scene, cameras, Foreshortened(), options
+    )
+    value = _budget_checks(value, partitions, crossovers, samples, cameras, options)
+    events = jax.vmap(lambda ev: _intervals(ev))(partitions.events)
+    start, end = events
+    start = eqx.error_if(start, ~jnp.isfinite(value), "ocp_jax: non-finite result.")
+    return VisibleIntervals(
+        start, end, partitions.visible, partitions.tangents.count, partitions.shadows.count
+    )
