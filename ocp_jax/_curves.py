@@ -88,6 +88,10 @@ class AbstractCurve(eqx.Module):
     def breakpoints(self) -> Float[Array, " b"]:
         """Parameters in [0, 1) where x'' may jump; always includes the seam t = 0."""
 
+    def grid_cells(self) -> int:
+        """Default number of grid cells for root bracketing (static)."""
+        return 16
+
     def __call__(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
         return self.derivatives(t)[0]
 
@@ -205,6 +209,9 @@ class BezierCurve(AbstractCurve):
     def breakpoints(self):
         return jnp.zeros((1,), self.control_points.dtype)
 
+    def grid_cells(self):
+        return 4 * self.degree
+
 
 def _uniform_bspline_blending(degree: int) -> np.ndarray:
     """Coefficients W (p+1, p+1): on one knot span the weight of P_{j-p+s} is
@@ -282,6 +289,9 @@ class BSplineCurve(AbstractCurve):
     def breakpoints(self):
         n = self.control_points.shape[0]
         return jnp.arange(n, dtype=self.control_points.dtype) / n
+
+    def grid_cells(self):
+        return 4 * self.control_points.shape[0]  # four per knot span, aligned with knots
 
 
 class Circle(AbstractCurve):

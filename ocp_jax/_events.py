@@ -108,28 +108,63 @@ def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations
     return Roots(t, valid, brackets.count)
 
 
+class TangencyPoints(NamedTuple):
+    """The tangency points of all curves, flattened to arrays of shape (l,)."""
+
+    point: Vec  # x_j(T), differentiable
+    curvature: Vec  # x_j''(T) (no derivative needed)
+    t: Float[Array, " l"]
+    curve: Int[Array, " l"]
+    valid: Bool[Array, " l"]
+
+
+def tangency_points(scene, tangents: Roots) -> TangencyPoints:
+    x, _, ddx = scene.components(tangents.t)
+    m, r = tangents.t.shape
+    flat = lambda v: v.map(jnp.ravel)  # noqa: E731
+    curve = jnp.repeat(jnp.arange(m), r)
+    return TangencyPoints(
+        flat(x),
+        flat(jax.lax.stop_gradient(ddx)),
+        jax.lax.stop_gradient(tangents.t).ravel(),
+        curve,
+        tangents.valid.ravel(),
+    )
+
+
 def shadow_times(
-    scene,
-    camera: Vec,
-    samples: Samples,
-    points: Vec,
-    point_valid: Bool[Array, " l"],
-    budget: int,
-    iterations: int,
+    scene, camera: Vec, samples: Samples, tangency: TangencyPoints, budget: int, iterations: int
 ) -> Roots:
-    """Shadow times on every curve of the rays from `camera` through `points` (the
-    tangency points of all curves, arrays of shape (l,)), keeping hits beyond the point."""
-    ray = materialize(jax.lax.stop_gradient(sub(points, camera))).map(lambda a: a[None, :, None])
+    """Shadow times on every curve of the rays from `camera` through the tangency points,
+    keeping hits beyond the point.
+
+    On the tangency point's own curve j the ray function g(s) = cross(P - C, x_j(s) - C)
+    has a double root at s = T (the ray touches the curve there). It is deflated,
+    r(s) = g(s) / u^2 with u = s - T wrapped to [-1/2, 1/2) (r(T) = g''(T) / 2), so that
+    only the genuine crossings remain, with no window around T excluded.
+    """
+    ray = materialize(jax.lax.stop_gradient(sub(tangency.point, camera)))
+    ray_grid = ray.map(lambda a: a[None, :, None])
     sight = sub(samples.x, jax.lax.stop_gradient(camera)).map(lambda a: a[:, None])
-    values = cross(ray, sight)  # (m, l, N + 1)
-    slopes = cross(ray, samples.dx.map(lambda a: a[:, None]))
-    depth = dot(ray, sight) / dot(ray, ray)
+    values = cross(ray_grid, sight)  # (m, l, N + 1)
+    slopes = cross(ray_grid, samples.dx.map(lambda a: a[:, None]))
+
+    u = samples.t - tangency.t[:, None]
+    u = u - jnp.round(u)  # (l, N + 1)
+    near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
+    u = jnp.where(near, 1.0, u)
+    r = jnp.where(near, 0.5 * cross(ray, tangency.curvature)[:, None], values / u**2)
+    dr = jnp.where(near, 0.0, (slopes - 2.0 * r * u) / u**2)
+    own = (jnp.arange(values.shape[0])[:, None] == tangency.curve)[..., None]
+    values, slopes = jnp.where(own, r, values), jnp.where(own, dr, slopes)
+
+    depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
     beyond = (depth[..., :-1] > 1.0) | (depth[..., 1:] > 1.0)
-    keep = beyond & point_valid[None, :, None]
+    keep = beyond & tangency.valid[None, :, None]
     brackets = grid_brackets(samples.t, values, slopes, budget, keep)
     cells = samples.t.shape[0] - 1
     line = brackets.source // (2 * cells)  # (m, r): which ray each root belongs to
-    args = (scene, camera, points.map(lambda a: a[line]))
+    args = (scene, camera, tangency.point.map(lambda a: a[line]))
     s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
     return Roots(s, valid, brackets.count)
 

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._events import Samples
-from ._roots import _safe, hermite_extremum
+from ._roots import hermite_extremum
 from ._vec import Vec, cross, dot, sub
 
 
@@ -33,8 +33,24 @@ def orientation(samples: Samples) -> Float[Array, " m"]:
     return jnp.sign(jnp.sum(x.x[:, :-1] * x.y[:, 1:] - x.y[:, :-1] * x.x[:, 1:], -1))
 
 
-def _between(lam):
-    return (lam > 0) & (lam < 1)
+def _crosses_segment(g, dg, depth, reach, h):
+    """Per cell of a grid: does the curve cross the open segment from the camera to the
+    query point? `g` (sign: side of the line of sight), `dg` its t-derivative, `depth`
+    = (x - C) . d along the line of sight, `reach` = |d|^2 (the query point's depth).
+
+    A sign change of g is a crossing at the linearly interpolated depth, tested without
+    division: D_c = (g0 D1 - g1 D0) / (g0 - g1) lies in (0, reach). A pair of crossings
+    inside one cell (a grazing occluder) shows as the cubic Hermite interpolant of (g, g')
+    changing sign at its extremum."""
+    positive = g >= 0
+    g0, g1, d0, d1 = g[..., :-1], g[..., 1:], depth[..., :-1], depth[..., 1:]
+    crossing = positive[..., :-1] != positive[..., 1:]
+    num, den = g0 * d1 - g1 * d0, g0 - g1
+    inside = (num * den > 0) & (jnp.abs(num) < reach * jnp.abs(den))
+    split, peak, turning = hermite_extremum(g0, g1, dg[..., :-1], dg[..., 1:], h)
+    pair = turning & ~crossing & (g0 * peak < 0)
+    d_pair = d0 + split * (d1 - d0)
+    return (crossing & inside) | (pair & (d_pair > 0) & (d_pair < reach))
 
 
 def visible_points(
@@ -47,33 +63,31 @@ def visible_points(
 ) -> Bool[Array, "m q"]:
     """chi(t_mid[i, k], camera) for query points x_mid, x'_mid (arrays (m, q)) on every
     curve i."""
-    m = samples.x.x.shape[0]
+    m = t_mid.shape[0]
+    h = jnp.diff(samples.t)
     d = sub(x_mid, camera)  # (m, q)
+    reach = dot(d, d)
     facing = sense[:, None] * cross(dx_mid, d) > 0
-
-    dd = d.map(lambda a: a[:, :, None, None])  # against the grid (m_j, N + 1)
     sight = sub(samples.x, camera)
-    g = cross(dd, sight)  # (m, q, m_j, N + 1)
-    dg = cross(dd, samples.dx)
-    depth = dot(dd, sight) / dot(dd, dd)
 
-    # On the query's own curve, deflate the trivial root at t_mid: r = g / (t - t_mid),
-    # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 at t_mid.
-    offset = samples.t - t_mid[:, :, None, None]
+    # Every other curve j: arrays (m, q, m_j, N + 1).
+    dd = d.map(lambda a: a[:, :, None, None])
+    others = _crosses_segment(
+        cross(dd, sight), cross(dd, samples.dx), dot(dd, sight), reach[:, :, None, None], h
+    )
+    not_own = (jnp.arange(m)[:, None] != jnp.arange(m))[:, None, :, None]
+    blocked = jnp.any(others & not_own, axis=(-1, -2))
+
+    # The query's own curve: deflate the trivial root at t_mid, r = g / (t - t_mid),
+    # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 there.
+    dq = d.map(lambda a: a[:, :, None])
+    own_sight = sight.map(lambda a: a[:, None])
+    g = cross(dq, own_sight)  # (m, q, N + 1)
+    dg = cross(dq, samples.dx.map(lambda a: a[:, None]))
+    offset = samples.t - t_mid[:, :, None]
     near = jnp.abs(offset) <= 1e4 * jnp.finfo(offset.dtype).eps
     offset = jnp.where(near, 1.0, offset)
-    r = jnp.where(near, cross(d, dx_mid)[:, :, None, None], g / offset)
+    r = jnp.where(near, cross(d, dx_mid)[:, :, None], g / offset)
     dr = jnp.where(near, 0.0, (dg - r) / offset)
-    own = jnp.arange(m)[:, None, None, None] == jnp.arange(m)[None, None, :, None]
-    g, dg = jnp.where(own, r, g), jnp.where(own, dr, dg)
-
-    positive = g >= 0
-    g0, g1, l0, l1 = g[..., :-1], g[..., 1:], depth[..., :-1], depth[..., 1:]
-    h = jnp.diff(samples.t)
-    split, peak, turning = hermite_extremum(g0, g1, dg[..., :-1], dg[..., 1:], h)
-    crossing = positive[..., :-1] != positive[..., 1:]
-    pair = turning & ~crossing & (g0 * peak < 0)
-    blocked = (crossing & _between(l0 + g0 / _safe(g0 - g1) * (l1 - l0))) | (
-        pair & _between(l0 + split * (l1 - l0))
-    )
-    return facing & ~jnp.any(blocked, axis=(-1, -2))
+    own = _crosses_segment(r, dr, dot(dq, own_sight), reach[:, :, None], h)
+    return facing & ~blocked & ~jnp.any(own, axis=-1)

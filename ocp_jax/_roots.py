@@ -43,13 +43,20 @@ def _safe(x):
     return jnp.where(x == 0, 1.0, x)
 
 
+def _hermite_coefficients(f0, f1, d0, d1, h):
+    """p(s) = ((a3 s + a2) s + a1) s + f0 on s in [0, 1]: the cubic with p(0) = f0,
+    p(1) = f1, p'(0) = h d0, p'(1) = h d1."""
+    a1 = h * d0
+    a2 = -3.0 * f0 - 2.0 * h * d0 + 3.0 * f1 - h * d1
+    a3 = 2.0 * f0 + h * d0 - 2.0 * f1 + h * d1
+    return a1, a2, a3
+
+
 def hermite_extremum(f0, f1, d0, d1, h):
     """Extremum of the cubic Hermite interpolant on each cell, as a fraction s in [0, 1]
     of the cell, and the interpolant's value there. Where F' does not change sign in the
     cell, s = 1 and the value is f1."""
-    a1 = h * d0
-    a2 = -3.0 * f0 - 2.0 * h * d0 + 3.0 * f1 - h * d1
-    a3 = 2.0 * f0 + h * d0 - 2.0 * f1 + h * d1
+    a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
     # p'(s) = A s^2 + B s + c has exactly one root in (0, 1) when d0 d1 < 0.
     A, B, c = 3.0 * a3, 2.0 * a2, a1
     disc = jnp.maximum(B * B - 4.0 * A * c, 0.0)
@@ -61,6 +68,17 @@ def hermite_extremum(f0, f1, d0, d1, h):
     s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)
     value = ((a3 * s + a2) * s + a1) * s + f0
     return s, jnp.where(turning, value, f1), turning
+
+
+def _slot_bounds(f0, f1, d0, d1, h, second):
+    """The two root slots of a cell, [0, s] (first) and [s, 1] (second), as fractions of
+    the cell, with the values at their ends (the split value is interpolated)."""
+    s, p, turning = hermite_extremum(f0, f1, d0, d1, h)
+    lo = jnp.where(second, s, 0.0)
+    hi = jnp.where(second, 1.0, s)
+    f_lo = jnp.where(second, p, f0)
+    f_hi = jnp.where(second, f1, p)
+    return lo, hi, f_lo, f_hi, turning
 
 
 def grid_brackets(
@@ -80,27 +98,16 @@ def grid_brackets(
     - `keep`: optional mask of the cells that may hold wanted roots.
     """
     h = jnp.diff(t_nodes)
+    cells = h.shape[0]
     f0, f1 = values[..., :-1], values[..., 1:]
     d0, d1 = slopes[..., :-1], slopes[..., 1:]
-    s, p, turning = hermite_extremum(f0, f1, d0, d1, h)
-    lo_frac = jnp.stack([jnp.zeros_like(s), s], -1)
-    hi_frac = jnp.stack([s, jnp.ones_like(s)], -1)
-    f_lo = jnp.stack([f0, p], -1)
-    f_hi = jnp.stack([p, f1], -1)
-    has_root = (f_lo * f_hi < 0) | ((f_lo == 0) & (lo_frac == 0))
+    first = _slot_bounds(f0, f1, d0, d1, h, False)
+    second = _slot_bounds(f0, f1, d0, d1, h, True)
+    has_root = jnp.stack(
+        [(first[2] * first[3] < 0) | (f0 == 0), second[2] * second[3] < 0], -1
+    )
     if keep is not None:
         has_root = has_root & keep[..., None]
-    frac = lo_frac + (hi_frac - lo_frac) * f_lo / _safe(f_lo - f_hi)
-    frac = jnp.where(f_lo == 0, lo_frac, frac)
-    start = t_nodes[:-1, None]
-    width = h[:, None]
-    fields = (
-        start + width * lo_frac,
-        start + width * hi_frac,
-        start + width * frac,
-        jnp.sign(f_lo),
-        jnp.broadcast_to(turning[..., None], has_root.shape),
-    )
     batch = has_root.shape[:-3]
     flat = has_root.reshape(batch + (-1,))
 
@@ -109,14 +116,37 @@ def grid_brackets(
         return index
 
     index = jnp.vectorize(pack, signature="(k)->(r)")(flat)
-    candidate = jnp.take_along_axis(flat, index, -1) & (
-        jnp.arange(budget) < flat.sum(-1, keepdims=True)
+    count = flat.sum(-1)
+    candidate = jnp.take_along_axis(flat, index, -1) & (jnp.arange(budget) < count[..., None])
+
+    # Recompute the bracket of each packed slot from its cell's values only.
+    cell_index = index // 2
+    cell = cell_index % cells
+
+    def pick(a):
+        return jnp.take_along_axis(a.reshape(batch + (-1,)), cell_index, -1)
+
+    cell_values = (pick(f0), pick(f1), pick(d0), pick(d1), h[cell])
+    lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, index % 2 == 1)
+    # Initial guess: regula falsi, then two Newton steps on the Hermite cubic (an
+    # O(h^4) approximation of F), so that few steps on F itself are needed.
+    guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / _safe(f_lo - f_hi))
+    a1, a2, a3 = _hermite_coefficients(*cell_values)
+    for _ in range(2):
+        p = ((a3 * guess + a2) * guess + a1) * guess + cell_values[0]
+        dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
+        guess = jnp.clip(guess - p / _safe(dp), lo, hi)
+    start, width = t_nodes[cell], h[cell]
+    return Brackets(
+        start + width * lo,
+        start + width * hi,
+        start + width * guess,
+        jnp.sign(f_lo),
+        turning,
+        candidate,
+        index,
+        count,
     )
-    lo, hi, guess, sign_lo, turn = (
-        jnp.take_along_axis(jnp.broadcast_to(x, has_root.shape).reshape(batch + (-1,)), index, -1)
-        for x in fields
-    )
-    return Brackets(lo, hi, guess, sign_lo, turn, candidate, index, flat.sum(-1))
 
 
 def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):

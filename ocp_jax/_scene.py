@@ -83,6 +83,10 @@ class Scene(eqx.Module):
         """x_i(t[i]), x_i'(t[i]), x_i''(t[i]) for every curve i (row i of `t`)."""
         return tuple(v.stack() for v in self.components(t))
 
+    def grid_cells(self) -> int:
+        """Grid cells per curve for root bracketing: the finest any curve asks for."""
+        return max(c.grid_cells() for c in self.curves)
+
     def breakpoints(self) -> Float[Array, "m b"]:
         """Each curve's breakpoints, padded with the seam 0 to a common length."""
         points = [c.breakpoints() for c in self.curves]

@@ -30,6 +30,7 @@ from ._events import (
     materialize,
     sample,
     shadow_times,
+    tangency_points,
     tangency_times,
 )
 from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
@@ -43,21 +44,22 @@ __all__ = ["VisibilityOptions", "VisibleIntervals", "visibility", "visible_inter
 class VisibilityOptions(eqx.Module):
     """Static sizes of the event computation (all Python ints; a pytree with no leaves).
 
-    - `grid`: cells per curve for bracketing roots and occlusion tests. Two roots of one
-      event function closer than a cell are still separated (Hermite split), but features
-      much smaller than a cell need a finer grid.
+    - `grid`: cells per curve for bracketing roots and occlusion tests; None (default)
+      takes the scene's own choice (4 per B-spline knot span, 4 per Bezier degree, 16 for
+      conics). Two roots of one event function closer than a cell are still separated
+      (Hermite split), but features much smaller than a cell need a finer grid.
     - `max_tangents`, `max_shadows`: root budgets per curve and camera; `max_crossovers`:
       per curve and pair of cameras. Exceeding one raises an error naming the option.
     - `quadrature`: Gauss-Legendre nodes per interval (16 converge to ~1e-12).
     - `newton_iterations`: safeguarded Newton steps per root.
     """
 
-    grid: int = eqx.field(static=True, default=64)
+    grid: int | None = eqx.field(static=True, default=None)
     max_tangents: int = eqx.field(static=True, default=8)
     max_shadows: int = eqx.field(static=True, default=16)
     max_crossovers: int = eqx.field(static=True, default=16)
     quadrature: int = eqx.field(static=True, default=16)
-    newton_iterations: int = eqx.field(static=True, default=12)
+    newton_iterations: int = eqx.field(static=True, default=4)
 
     def __check_init__(self):
         for name in (
@@ -69,9 +71,11 @@ class VisibilityOptions(eqx.Module):
             "newton_iterations",
         ):
             value = getattr(self, name)
+            if name == "grid" and value is None:
+                continue
             if not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"VisibilityOptions.{name} must be a positive int, got {value!r}.")
-        if self.grid < 8:
+        if self.grid is not None and self.grid < 8:
             raise ValueError(f"VisibilityOptions.grid must be >= 8, got {self.grid}.")
 
 
@@ -103,19 +107,10 @@ def _intervals(events: Float[Array, "m e"]):
 def _camera_partition(scene, camera: Vec, samples, sense, options) -> CameraPartition:
     iters = options.newton_iterations
     tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
-    points = scene.components(tangents.t)[0].map(jnp.ravel)  # differentiable
-    shadows = shadow_times(
-        scene,
-        camera,
-        samples,
-        points,
-        tangents.valid.reshape(-1),
-        options.max_shadows,
-        iters,
-    )
-    events = jnp.sort(
-        jnp.concatenate([scene.breakpoints(), tangents.t, shadows.t], 1), axis=1
-    )
+    points = tangency_points(scene, tangents)
+    shadows = shadow_times(scene, camera, samples, points, options.max_shadows, iters)
+    seam = jnp.zeros_like(tangents.t[:, :1])
+    events = jnp.sort(jnp.concatenate([seam, tangents.t, shadows.t], 1), axis=1)
     # The visibility decision carries no derivative.
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start + end)
@@ -145,14 +140,14 @@ def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
     objective = as_local_objective(objective)
     cameras = _cameras(cameras, scene.dtype)
     scene_sg = jax.lax.stop_gradient(scene)
-    samples = sample(scene_sg, options.grid)
+    samples = sample(scene_sg, options.grid or scene.grid_cells())
     sense = orientation(samples)
     cameras = Vec.of(cameras)
     partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
         scene, cameras, samples, sense, options
     )
     k = cameras.x.shape[0]
-    pieces = [partitions.events[c] for c in range(k)]
+    pieces = [scene.breakpoints()] + [partitions.events[c] for c in range(k)]
     crossovers = None
     if k > 1 and not objective.is_constant:
         pairs = np.array(list(itertools.combinations(range(k), 2)))
