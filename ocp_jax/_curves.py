@@ -1,8 +1,8 @@
 """Closed parametric curves x: [0, 1) -> R^2 (the thesis's objects, Sec. 2.1).
 
 Every curve gives its position x(t) and the derivatives x'(t), x''(t) (Eq. 2.2) for any
-array of parameters t, and the parameters where it is less smooth than C-infinity
-(`breakpoints`: B-spline knots, the seam of a Bezier curve). All of them are equinox
+array of parameters t, and where integrals over it are cut into quadrature panels
+(`breakpoints`: uniform panels that include the B-spline knots and the seam). All of them are equinox
 Modules whose array fields are pytree leaves, so every quantity derived from them is
 differentiable with respect to the curve's parameters too.
 """
@@ -84,9 +84,16 @@ class AbstractCurve(eqx.Module):
     def dtype(self):
         return jnp.result_type(*jax.tree.leaves(self))
 
-    @abc.abstractmethod
+    def panels(self) -> int:
+        """Number of uniform quadrature panels [j/P, (j+1)/P) (static); see `breakpoints`."""
+        return 4
+
     def breakpoints(self) -> Float[Array, " b"]:
-        """Parameters in [0, 1) where x'' may jump; always includes the seam t = 0."""
+        """Where the integrals over this curve are cut: t = j/P for the curve's `panels`
+        P. They include the seam t = 0 and every parameter where x'' may jump (B-spline
+        knots), and keep each panel short enough for Gauss-Legendre quadrature to reach
+        ~1e-12 relative error (a degree-n Bezier needs about n panels)."""
+        return jnp.arange(self.panels(), dtype=self.dtype) / self.panels()
 
     def grid_cells(self) -> int:
         """Default number of grid cells for root bracketing (static)."""
@@ -206,8 +213,8 @@ class BezierCurve(AbstractCurve):
             _bernstein_combination(tp, sp, n - 2, d2),
         )
 
-    def breakpoints(self):
-        return jnp.zeros((1,), self.control_points.dtype)
+    def panels(self):
+        return max(4, self.degree)
 
     def grid_cells(self):
         return 4 * self.degree
@@ -286,9 +293,8 @@ class BSplineCurve(AbstractCurve):
 
         return combine(w), combine(dw), combine(ddw)
 
-    def breakpoints(self):
-        n = self.control_points.shape[0]
-        return jnp.arange(n, dtype=self.control_points.dtype) / n
+    def panels(self):
+        return self.control_points.shape[0]  # the knots t = j/n
 
     def grid_cells(self):
         return 4 * self.control_points.shape[0]  # four per knot span, aligned with knots
@@ -323,9 +329,6 @@ class Circle(AbstractCurve):
             Vec(-w * s, w * c),
             Vec(-_TWO_PI * w * c, -_TWO_PI * w * s),
         )
-
-    def breakpoints(self):
-        return jnp.zeros((1,), self.center.dtype)
 
 
 class Ellipse(AbstractCurve):
@@ -371,5 +374,5 @@ class Ellipse(AbstractCurve):
             scale(-(_TWO_PI**2), local),
         )
 
-    def breakpoints(self):
-        return jnp.zeros((1,), self.center.dtype)
+    def panels(self):
+        return 8

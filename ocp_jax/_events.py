@@ -132,41 +132,71 @@ def tangency_points(scene, tangents: Roots) -> TangencyPoints:
     )
 
 
+def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
+    """A disc around each curve: centre of its grid points, radius to the farthest one
+    plus the longest step between grid points (an arc never strays farther)."""
+    centre = samples.x.map(lambda a: jnp.mean(a, axis=1))
+    reach = norm(sub(samples.x, centre.map(lambda a: a[:, None])))
+    step = norm(samples.x.map(lambda a: jnp.diff(a, axis=1)))
+    return centre, jnp.max(reach, axis=1) + jnp.max(step, axis=1)
+
+
 def shadow_times(
     scene, camera: Vec, samples: Samples, tangency: TangencyPoints, budget: int, iterations: int
 ) -> Roots:
     """Shadow times on every curve of the rays from `camera` through the tangency points,
     keeping hits beyond the point.
 
+    Only rays that pass through a curve's bounding disc beyond their tangency point are
+    searched on that curve (at most `budget` of them per curve; the count is returned
+    with the roots' so that an overflow is reported).
+
     On the tangency point's own curve j the ray function g(s) = cross(P - C, x_j(s) - C)
     has a double root at s = T (the ray touches the curve there). It is deflated,
     r(s) = g(s) / u^2 with u = s - T wrapped to [-1/2, 1/2) (r(T) = g''(T) / 2), so that
     only the genuine crossings remain, with no window around T excluded.
     """
-    ray = materialize(jax.lax.stop_gradient(sub(tangency.point, camera)))
-    ray_grid = ray.map(lambda a: a[None, :, None])
-    sight = sub(samples.x, jax.lax.stop_gradient(camera)).map(lambda a: a[:, None])
-    values = cross(ray_grid, sight)  # (m, l, N + 1)
+    c0 = jax.lax.stop_gradient(camera)
+    ray = materialize(jax.lax.stop_gradient(sub(tangency.point, camera)))  # (l,)
+    ray_l = ray.map(lambda a: a[None])  # (1, l)
+    length = norm(ray_l)
+    centre, radius = bounding_discs(samples)
+    to_centre = sub(centre, c0).map(lambda a: a[:, None])  # (m, 1)
+    reach = radius[:, None] * length  # (m, l)
+    passes = (
+        (jnp.abs(cross(ray_l, to_centre)) <= reach)
+        & (dot(ray_l, to_centre) + reach > length**2)
+        & tangency.valid[None]
+    )
+    rays = min(budget, passes.shape[1])
+    pick = jax.vmap(lambda p: jnp.nonzero(p, size=rays, fill_value=0)[0])(passes)  # (m, rays)
+    ray_count = passes.sum(1)
+    slot = jnp.broadcast_to(jnp.arange(rays), pick.shape)
+    chosen = jnp.take_along_axis(passes, pick, 1) & (slot < ray_count[:, None])
+
+    ray_grid = ray.map(lambda a: a[pick][..., None])  # (m, rays, 1)
+    sight = sub(samples.x, c0).map(lambda a: a[:, None])  # (m, 1, N + 1)
+    values = cross(ray_grid, sight)
     slopes = cross(ray_grid, samples.dx.map(lambda a: a[:, None]))
 
-    u = samples.t - tangency.t[:, None]
-    u = u - jnp.round(u)  # (l, N + 1)
+    u = samples.t[None, None] - tangency.t[pick][..., None]
+    u = u - jnp.round(u)
     near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
     u = jnp.where(near, 1.0, u)
-    r = jnp.where(near, 0.5 * cross(ray, tangency.curvature)[:, None], values / u**2)
+    curvature = cross(ray_grid, tangency.curvature.map(lambda a: a[pick][..., None]))
+    r = jnp.where(near, 0.5 * curvature, values / u**2)
     dr = jnp.where(near, 0.0, (slopes - 2.0 * r * u) / u**2)
-    own = (jnp.arange(values.shape[0])[:, None] == tangency.curve)[..., None]
+    own = (tangency.curve[pick] == jnp.arange(pick.shape[0])[:, None])[..., None]
     values, slopes = jnp.where(own, r, values), jnp.where(own, dr, slopes)
 
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
     beyond = (depth[..., :-1] > 1.0) | (depth[..., 1:] > 1.0)
-    keep = beyond & tangency.valid[None, :, None]
-    brackets = grid_brackets(samples.t, values, slopes, budget, keep)
+    brackets = grid_brackets(samples.t, values, slopes, budget, beyond & chosen[..., None])
     cells = samples.t.shape[0] - 1
-    line = brackets.source // (2 * cells)  # (m, r): which ray each root belongs to
+    line = jnp.take_along_axis(pick, brackets.source // (2 * cells), 1)  # (m, r)
     args = (scene, camera, tangency.point.map(lambda a: a[line]))
     s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
-    return Roots(s, valid, brackets.count)
+    return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
 
 
 def crossover_times(
@@ -179,6 +209,15 @@ def crossover_times(
         return frozen.evaluate(x, dx, ca) - frozen.evaluate(x, dx, cb)
 
     values, slopes = jax.jvp(difference, (samples.x, samples.dx), (samples.dx, samples.ddx))
+    # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user q)
+    # either camera is the best one: count the node as just positive (by more than the
+    # Hermite interpolant of the noise can dip), so that rounding noise brackets no roots.
+    scale = jnp.abs(frozen.evaluate(samples.x, samples.dx, ca)) + jnp.abs(
+        frozen.evaluate(samples.x, samples.dx, cb)
+    )
+    rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
+    tie = jnp.abs(values) <= rounding
+    values = jnp.where(tie, rounding, values)
     brackets = grid_brackets(samples.t, values[:, None], slopes[:, None], budget)
     args = (scene, camera_a, camera_b, objective)
     t, valid = solve_roots(crossover_function, args, brackets, iterations, 1.0)

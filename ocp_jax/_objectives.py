@@ -40,6 +40,10 @@ class AbstractLocalObjective(eqx.Module):
         """q on broadcastable `Vec`s of arrays (the engine's layout); vmaps `__call__`
         unless a subclass gives a direct formula."""
         q = jnp.vectorize(self.__call__, signature="(2),(2),(2)->()")
+        shape = jnp.broadcast_shapes(point.x.shape, tangent.x.shape, camera.x.shape)
+        point, tangent, camera = (
+            v.map(lambda a: jnp.broadcast_to(a, shape)) for v in (point, tangent, camera)
+        )
         return q(point.stack(), tangent.stack(), camera.stack())
 
 

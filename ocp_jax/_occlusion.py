@@ -47,6 +47,7 @@ def _crosses_segment(g, dg, depth, reach, h):
     crossing = positive[..., :-1] != positive[..., 1:]
     num, den = g0 * d1 - g1 * d0, g0 - g1
     inside = (num * den > 0) & (jnp.abs(num) < reach * jnp.abs(den))
+    h = jnp.broadcast_to(h, g0.shape)
     split, peak, turning = hermite_extremum(g0, g1, dg[..., :-1], dg[..., 1:], h)
     pair = turning & ~crossing & (g0 * peak < 0)
     d_pair = d0 + split * (d1 - d0)
@@ -72,10 +73,12 @@ def visible_points(
 
     # Every other curve j: arrays (m, q, m_j, N + 1).
     dd = d.map(lambda a: a[:, :, None, None])
+    sight_j = sight.map(lambda a: a[None, None])
+    dx_j = samples.dx.map(lambda a: a[None, None])
     others = _crosses_segment(
-        cross(dd, sight), cross(dd, samples.dx), dot(dd, sight), reach[:, :, None, None], h
+        cross(dd, sight_j), cross(dd, dx_j), dot(dd, sight_j), reach[:, :, None, None], h
     )
-    not_own = (jnp.arange(m)[:, None] != jnp.arange(m))[:, None, :, None]
+    not_own = ~jnp.eye(m, dtype=bool)[:, None, :, None]
     blocked = jnp.any(others & not_own, axis=(-1, -2))
 
     # The query's own curve: deflate the trivial root at t_mid, r = g / (t - t_mid),
@@ -84,7 +87,7 @@ def visible_points(
     own_sight = sight.map(lambda a: a[:, None])
     g = cross(dq, own_sight)  # (m, q, N + 1)
     dg = cross(dq, samples.dx.map(lambda a: a[:, None]))
-    offset = samples.t - t_mid[:, :, None]
+    offset = samples.t[None, None] - t_mid[:, :, None]
     near = jnp.abs(offset) <= 1e4 * jnp.finfo(offset.dtype).eps
     offset = jnp.where(near, 1.0, offset)
     r = jnp.where(near, cross(d, dx_mid)[:, :, None], g / offset)

@@ -101,8 +101,9 @@ def grid_brackets(
     cells = h.shape[0]
     f0, f1 = values[..., :-1], values[..., 1:]
     d0, d1 = slopes[..., :-1], slopes[..., 1:]
-    first = _slot_bounds(f0, f1, d0, d1, h, False)
-    second = _slot_bounds(f0, f1, d0, d1, h, True)
+    h_cells = jnp.broadcast_to(h, f0.shape)
+    first = _slot_bounds(f0, f1, d0, d1, h_cells, False)
+    second = _slot_bounds(f0, f1, d0, d1, h_cells, True)
     has_root = jnp.stack(
         [(first[2] * first[3] < 0) | (f0 == 0), second[2] * second[3] < 0], -1
     )
@@ -117,7 +118,8 @@ def grid_brackets(
 
     index = jnp.vectorize(pack, signature="(k)->(r)")(flat)
     count = flat.sum(-1)
-    candidate = jnp.take_along_axis(flat, index, -1) & (jnp.arange(budget) < count[..., None])
+    slot = jnp.broadcast_to(jnp.arange(budget), index.shape)
+    candidate = jnp.take_along_axis(flat, index, -1) & (slot < count[..., None])
 
     # Recompute the bracket of each packed slot from its cell's values only.
     cell_index = index // 2
@@ -154,25 +156,27 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
 
     Returns the roots (no derivative attached) and whether each is a root: a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
-    only if |F| <= 1e3 eps scale at the end.
+    only once an iterate has confirmed the sign change (F of the other sign than at the
+    bracket's start) or |F| <= 1e3 eps scale at the end.
     """
     lo, hi, t = brackets.lo, brackets.hi, brackets.guess
+    confirmed = ~brackets.turning
 
     def step(_, carry):
-        lo, hi, t = carry
+        lo, hi, t, confirmed = carry
         value, slope, _ = fn(t, args)
         same = jnp.sign(value) == brackets.sign_lo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
         newton = t - value / _safe(slope)
         inside = (newton >= lo) & (newton <= hi)
-        return lo, hi, jnp.where(inside, newton, 0.5 * (lo + hi))
+        return lo, hi, jnp.where(inside, newton, 0.5 * (lo + hi)), confirmed | ~same
 
-    lo, hi, t = jax.lax.fori_loop(0, iterations, step, (lo, hi, t))
+    lo, hi, t, confirmed = jax.lax.fori_loop(0, iterations, step, (lo, hi, t, confirmed))
     value, _, scale = fn(t, args)
     eps = jnp.finfo(t.dtype).eps
     converged = jnp.abs(value) <= 1e3 * eps * scale
-    valid = brackets.candidate & (~brackets.turning | converged)
+    valid = brackets.candidate & (confirmed | converged)
     return t, valid
 
 

@@ -1,0 +1,45 @@
+"""Test configuration: float64 and strict rank promotion for the whole suite.
+
+XLA's CPU backend spends most of this suite's time compiling (the programs run in
+milliseconds), so unless XLA_FLAGS already chooses a backend optimisation level we
+compile with `--xla_backend_optimization_level=0`: it halves compile time and does not
+change the floating-point semantics (no fast-math either way). Set
+OCP_TEST_XLA_DEFAULT_OPT=1 to test with XLA's default optimisation level.
+
+Compiled functions are shared through module-level caches (helpers.batched and the
+`functools.cache` functions in test_visibility.py), which live for the whole session.
+"""
+
+import os
+import sys
+
+if not os.environ.get("OCP_TEST_XLA_DEFAULT_OPT") and "xla_backend_optimization_level" not in (
+    os.environ.get("XLA_FLAGS", "")
+):
+    os.environ["XLA_FLAGS"] = (
+        os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
+    ).strip()
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_numpy_rank_promotion", "raise")
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import pytest  # noqa: E402
+
+import helpers  # noqa: E402
+
+
+def pytest_report_header(config):
+    return [
+        f"jax {jax.__version__}, x64, rank promotion 'raise', "
+        f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}"
+    ]
+
+
+@pytest.fixture(scope="session")
+def reference_specs():
+    """The NumPy reference's curve specs of every named test scene."""
+    return {name: helpers.to_reference(scene) for name, scene in helpers.SCENES.items()}

@@ -1,0 +1,967 @@
+"""The visibility objective Q, its events and its derivatives.
+
+Checked against closed forms (circles, a shadowing pair of circles), the independent
+NumPy reference (tests/reference.py), finite differences, and the thesis's closed-form
+event derivatives (Eqs. 5.17, 5.28, 5.32).
+
+Compile time: every visibility evaluation goes through a few batched, jitted functions in
+helpers.py (one compilation per scene structure and number of cameras); the other
+compiled functions of this module are module-level caches used by several tests.
+"""
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.flatten_util import ravel_pytree
+from reference import eval_curve, reference_visibility, reference_visible_intervals
+from scipy import integrate
+
+import helpers as H
+import ocp_jax as ocp
+from helpers import FS, VL
+from ocp_jax import _events, _roots
+from ocp_jax._vec import Vec
+
+J = np.array([[0.0, -1.0], [1.0, 0.0]])  # n = J x' (the library's Eq. 2.3)
+R = np.array([[0.0, 1.0], [-1.0, 0.0]])  # the thesis's matrix in Eqs. 5.14-5.20, 5.29-5.32
+
+
+def rel(a, b):
+    return H.relative_error(a, b)
+
+
+OPTIONS = ocp.VisibilityOptions()
+
+
+def grid_cells(scene):
+    """The number of grid cells the library uses for `scene` by default."""
+    return OPTIONS.grid or scene.grid_cells()
+
+
+# ===========================================================================
+# strict rank promotion (conftest sets jax_numpy_rank_promotion="raise")
+# ===========================================================================
+def test_grid_brackets_under_rank_promotion_raise():
+    t = jnp.linspace(0.0, 1.0, 9)
+    values = (t - 0.3)[None]
+    brackets = _roots.grid_brackets(t, values, jnp.ones_like(values), 2)
+    assert int(brackets.count) == 1
+
+
+# ===========================================================================
+# closed forms: one circle
+# ===========================================================================
+# (center, radius, camera)
+CIRCLE_CASES = [
+    ((0.0, 0.0), 1.0, (3.0, 0.0)),
+    ((0.0, 0.0), 1.0, (1.05, 0.0)),  # very close
+    ((1.5, -0.7), 2.0, (1.5 + 5.0 * math.cos(2.0), -0.7 + 5.0 * math.sin(2.0))),
+    ((-3.0, 4.0), 0.3, (-3.0 + 40.0 * math.cos(-1.0), 4.0 + 40.0 * math.sin(-1.0))),  # far
+    ((0.2, 0.1), 1.7, (2.1, -3.0)),
+]
+
+
+@functools.cache
+def circle_results():
+    scenes = [H.circle_scene(c, r) for c, r, _ in CIRCLE_CASES]
+    cams = np.array([[cam] for _, _, cam in CIRCLE_CASES])
+    return H.batched("grads", scenes, cams)
+
+
+def test_foreshortened_closed_form_is_right():
+    """The closed form itself (derived in helpers.foreshortened_antiderivative) against
+    adaptive quadrature of r q(phi) and against the NumPy reference."""
+    for r, d in ((1.0, 3.0), (2.0, 2.3), (0.3, 40.0), (1.0, 1.05)):
+        alpha = math.acos(r / d)
+
+        def integrand(phi):
+            return r * (r - d * math.cos(phi)) ** 2 / (r * r + d * d - 2 * r * d * math.cos(phi))
+
+        quad = integrate.quad(integrand, -alpha, alpha, epsabs=0, epsrel=1e-13, limit=200)[0]
+        assert abs(H.circle_foreshortened(r, d) / quad - 1) < 1e-12
+        ref = reference_visibility(
+            [{"type": "circle", "center": np.zeros(2), "radius": r}], np.array([[d, 0.0]]),
+            "foreshortened",
+        )
+        assert abs(H.circle_foreshortened(r, d) / ref - 1) < 1e-12
+    # far-camera limit: the half circle seen with q = cos^2 gives r pi / 2 (+ O(r/d))
+    assert abs(H.circle_foreshortened(1.0, 1e4) / (math.pi / 2) - 1) < 1e-3
+
+
+@pytest.mark.parametrize("case", range(len(CIRCLE_CASES)))
+def test_circle_closed_forms(case):
+    center, r, cam = CIRCLE_CASES[case]
+    d = math.dist(center, cam)
+    vl, fs, _, _ = circle_results()
+    assert abs(vl[case] / H.circle_visible_length(r, d) - 1) <= 1e-12
+    assert abs(fs[case] / H.circle_foreshortened(r, d) - 1) <= 1e-7
+
+
+def test_foreshortened_quadrature_for_a_close_camera():
+    """A camera close to a curve makes q = cos^2 nearly singular (poles (d - r) / r from
+    the real axis): 16 nodes per panel keep the issue's 1e-7 down to d = 1.05 r
+    (test_circle_closed_forms), and `VisibilityOptions(quadrature=...)` buys the rest."""
+    opts = ocp.VisibilityOptions(quadrature=32)
+    fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, opts))
+    for d, tol in ((1.05, 1e-13), (1.01, 1e-9)):
+        q = fn(H.circle_scene(), jnp.array([[d, 0.0]]))
+        assert abs(float(q) / H.circle_foreshortened(1.0, d) - 1) <= tol
+
+
+@pytest.mark.parametrize("case", range(len(CIRCLE_CASES)))
+def test_circle_gradients_closed_form(case):
+    """dQ/d(camera, centre, radius) against the derivatives of the closed forms."""
+    center, r, cam = CIRCLE_CASES[case]
+    _, _, gvl, gfs = circle_results()
+    center, cam = np.asarray(center), np.asarray(cam)
+    d = np.linalg.norm(cam - center)
+    e = (cam - center) / d
+    # visible length 2 r acos(r/d): d/dd = 2 r^2 / (d sqrt(d^2 - r^2)),
+    # d/dr = 2 acos(r/d) - 2 r / sqrt(d^2 - r^2)
+    dd = 2 * r * r / (d * math.sqrt(d * d - r * r))
+    dr = 2 * math.acos(r / d) - 2 * r / math.sqrt(d * d - r * r)
+    (scene_g, cam_g) = gvl
+    assert rel(cam_g[case, 0], dd * e) < 1e-10
+    assert rel(scene_g.curves[0].center[case], -dd * e) < 1e-10
+    assert abs(scene_g.curves[0].radius[case] - dr) < 1e-10 * max(1.0, abs(dr))
+
+    # foreshortened: autodiff of the closed form (independent of the library)
+    def closed(c, radius, camera):
+        return H.circle_foreshortened(radius, jnp.linalg.norm(camera - c), xp=jnp)
+
+    want = jax.grad(closed, argnums=(0, 1, 2))(jnp.asarray(center), jnp.asarray(r), jnp.asarray(cam))
+    # (1e-6: the quadrature error of Q at d = 1.05 r carries over to dQ)
+    (scene_g, cam_g) = gfs
+    assert rel(cam_g[case, 0], want[2]) < 1e-6
+    assert rel(scene_g.curves[0].center[case], want[0]) < 1e-6
+    assert abs(scene_g.curves[0].radius[case] - want[1]) < 1e-6 * max(1.0, abs(float(want[1])))
+
+
+# ===========================================================================
+# closed forms: a small circle shadowing a big one
+# ===========================================================================
+def two_circles_closed_form(C, cb, R_, cs, r, xp=np):
+    """(visible length, foreshortened Q) of a big circle (cb, R_) partly shadowed by a
+    small circle (cs, r) in front of it, seen from C. The shadow is the arc of the big
+    circle between the first hits of the two rays from C tangent to the small circle."""
+    C, cb, cs = (xp.asarray(v) for v in (C, cb, cs))
+
+    def norm(v):
+        return xp.sqrt(v[0] * v[0] + v[1] * v[1])
+
+    ds = norm(C - cs)
+    v = C - cb
+    db = norm(v)
+    alpha = xp.arccos(R_ / db)  # the big circle's visible half-angle
+    base = xp.arctan2(v[1], v[0])
+    w = cs - C
+    psi0, beta = xp.arctan2(w[1], w[0]), xp.arcsin(r / ds)
+    phis, checks = [], []
+    for psi in (psi0 - beta, psi0 + beta):
+        u0, u1 = xp.cos(psi), xp.sin(psi)
+        b = u0 * v[0] + u1 * v[1]
+        disc = b * b - (db * db - R_ * R_)
+        lam = -b - xp.sqrt(disc)  # first hit of C + lam u on the big circle
+        y0, y1 = v[0] + lam * u0, v[1] + lam * u1
+        phi = xp.arctan2(y1, y0) - base
+        phis.append((phi + math.pi) % (2 * math.pi) - math.pi)
+        checks.append((disc, lam))
+    p1, p2 = xp.minimum(phis[0], phis[1]), xp.maximum(phis[0], phis[1])
+    G = H.foreshortened_antiderivative
+    vl = R_ * (2 * alpha - (p2 - p1)) + 2 * r * xp.arccos(r / ds)
+    fs = (G(p1, R_, db, xp) - G(-alpha, R_, db, xp)) + (G(alpha, R_, db, xp) - G(p2, R_, db, xp))
+    fs = fs + H.circle_foreshortened(r, ds, xp)
+    return vl, fs, (p1, p2, alpha, checks)
+
+
+# (camera, big centre, big radius, small centre, small radius)
+TWO_CIRCLE_CASES = [
+    ((7.0, 0.3), (0.0, 0.0), 2.0, (4.0, 0.0), 0.6),
+    ((-3.0, 5.0), (1.0, -1.0), 1.5, (-0.9, 1.8), 0.35),
+    ((2.0, 6.0), (0.5, 0.0), 1.2, (1.5, 3.0), 0.3),
+]
+
+
+@functools.cache
+def two_circle_results():
+    scenes = [H.two_circles(cb, R_, cs, r) for _, cb, R_, cs, r in TWO_CIRCLE_CASES]
+    cams = np.array([[C] for C, *_ in TWO_CIRCLE_CASES])
+    return H.batched("grads", scenes, cams)
+
+
+@pytest.mark.parametrize("case", range(len(TWO_CIRCLE_CASES)))
+def test_two_circles_shadow_closed_form(case):
+    C, cb, R_, cs, r = TWO_CIRCLE_CASES[case]
+    vl_want, fs_want, (p1, p2, alpha, checks) = two_circles_closed_form(C, cb, R_, cs, r)
+    # preconditions of the closed form: both tangent rays hit the big circle in front of
+    # the camera, and the whole shadow lies inside its visible arc
+    assert all(disc > 0 and lam > 0 for disc, lam in checks)
+    assert -alpha < p1 < p2 < alpha
+    vl, fs, _, _ = two_circle_results()
+    assert abs(vl[case] / vl_want - 1) <= 1e-12
+    assert abs(fs[case] / fs_want - 1) <= 1e-11
+    # and the reference agrees with the hand computation
+    spec = H.to_reference(H.two_circles(cb, R_, cs, r))
+    assert abs(reference_visibility(spec, np.array([C]), "visible_length") / vl_want - 1) < 1e-12
+    assert abs(reference_visibility(spec, np.array([C]), "foreshortened") / fs_want - 1) < 1e-12
+
+
+@pytest.mark.parametrize("case", range(len(TWO_CIRCLE_CASES)))
+def test_two_circles_gradients_closed_form(case):
+    """Shadow times move with the camera and both circles: dQ against autodiff of the
+    closed form, for every parameter."""
+    C, cb, R_, cs, r = (jnp.asarray(v, jnp.float64) for v in TWO_CIRCLE_CASES[case])
+    _, _, gvl, gfs = two_circle_results()
+    for index, grads in ((0, gvl), (1, gfs)):
+
+        def closed(C, cb, R_, cs, r):
+            return two_circles_closed_form(C, cb, R_, cs, r, xp=jnp)[index]
+
+        want = jax.grad(closed, argnums=(0, 1, 2, 3, 4))(C, cb, R_, cs, r)
+        scene_g, cam_g = grads
+        big, small = scene_g.curves
+        got = (cam_g[case, 0], big.center[case], big.radius[case], small.center[case],
+               small.radius[case])
+        flat_got = np.concatenate([np.ravel(g) for g in got])
+        flat_want = np.concatenate([np.ravel(np.asarray(g)) for g in want])
+        assert rel(flat_got, flat_want) < 1e-9, (index, flat_got, flat_want)
+
+
+# ===========================================================================
+# the NumPy reference on non-convex scenes with several objects
+# ===========================================================================
+# scenes whose (k) batch also yields gradients (used by the finite-difference tests)
+GRAD_SETS = {("three", 2), ("mixed", 1)}
+# Cameras nearly on an inflection tangent line (helpers.near_double_camera arguments:
+# scene, curve, inflection, distance along the line, side, separation of the two roots).
+# Of three_objects' kidney B-spline:
+KIDNEY_NEAR_DOUBLE = [("three", 0, 1, 4.0, 1, 0.004), ("three", 0, 1, 4.0, 1, 0.001)]
+# of the banana's two inflections (cameras inside the thesis's rectangle):
+BANANA_NEAR_DOUBLE = [
+    ("banana", 0, 0, -30.0, 1, 0.004),
+    ("banana", 0, 1, 30.0, 1, 0.004),
+    ("banana", 0, 0, -30.0, 1, 0.002),
+    ("banana", 0, 0, -30.0, 1, 0.001),
+]
+
+
+def camera_sets(name, k):
+    sets = np.asarray(H.CAMERAS[name][k], float).reshape(-1, k, 2)
+    if (name, k) == ("three", 1):
+        extra = [H.near_double_camera(*args)[0] for args in KIDNEY_NEAR_DOUBLE]
+        sets = np.concatenate([sets, np.asarray(extra)[:, None]])
+    return sets
+
+
+@functools.cache
+def scene_results(name, k):
+    """(camera sets, outputs) of the shared batched function for this scene and k."""
+    if name == "banana":
+        extra = [H.near_double_camera(*args)[0] for args in BANANA_NEAR_DOUBLE]
+        cams = np.concatenate([np.asarray(H.BANANA_CAMERAS), extra])[:, None]
+    else:
+        cams = camera_sets(name, k)
+    kind = "grad" if (name, k) in GRAD_SETS else "values"
+    return cams, H.batched(kind, H.SCENES[name], cams)
+
+
+@functools.cache
+def reference_values(name, k, i):
+    cams, _ = scene_results(name, k)
+    spec = H.to_reference(H.SCENES[name])
+    return (reference_visibility(spec, cams[i], "visible_length"),
+            reference_visibility(spec, cams[i], "foreshortened"))
+
+
+REFERENCE_CASES = [
+    (name, k, i)
+    for name in ("three", "blobs3", "mixed")
+    for k in (1, 2, 3)
+    for i in range(len(H.CAMERAS[name][k]))
+]
+
+
+def _inside_or_near(spec_list, point, margin):
+    """True if `point` is inside a curve (winding number of a dense polygon) or closer
+    than `margin` to it."""
+    t = np.linspace(0, 1, 4001)
+    for spec in spec_list:
+        x = eval_curve(spec, t)[0] - point
+        ang = np.arctan2(x[1:, 1] * x[:-1, 0] - x[1:, 0] * x[:-1, 1], (x[1:] * x[:-1]).sum(-1))
+        if abs(ang.sum()) > np.pi or np.linalg.norm(x, axis=-1).min() < margin:
+            return True
+    return False
+
+
+def test_test_cameras_are_outside_every_object(reference_specs):
+    for name in ("three", "blobs3", "mixed", "banana"):
+        spec = reference_specs[name]
+        cams = [scene_results(name, 1)[0].reshape(-1, 2)] if name == "banana" else [
+            camera_sets(name, k).reshape(-1, 2) for k in (1, 2, 3)
+        ]
+        for cam in np.concatenate(cams):
+            assert not _inside_or_near(spec, cam, 0.1), (name, cam)
+
+
+@pytest.mark.parametrize("name,k,i", REFERENCE_CASES, ids=[f"{n}-k{k}-{i}" for n, k, i in REFERENCE_CASES])
+def test_matches_reference(name, k, i):
+    cams, out = scene_results(name, k)
+    vl, fs = out[0][i], out[1][i]
+    ref_vl, ref_fs = reference_values(name, k, i)
+    assert abs(vl / ref_vl - 1) <= 1e-7, (vl, ref_vl)
+    assert abs(fs / ref_fs - 1) <= 1e-7, (fs, ref_fs)
+
+
+# the cameras on the rectangle (the near-double ones: test_near_double_roots_banana)
+BANANA_Q_CASES = range(len(H.BANANA_CAMERAS))
+
+
+def test_banana_cameras_on_the_thesis_rectangle():
+    (cx, cy), w, h = ocp.scenes.BANANA_RECTANGLE
+    for x, y in H.BANANA_CAMERAS:
+        assert (abs(abs(x - cx) - w / 2) < 1e-12 and abs(y - cy) <= h / 2) or (
+            abs(abs(y - cy) - h / 2) < 1e-12 and abs(x - cx) <= w / 2
+        )
+
+
+@pytest.mark.parametrize("i", BANANA_Q_CASES)
+def test_banana_matches_reference(i):
+    cams, (vl, fs) = scene_results("banana", 1)
+    ref_vl, ref_fs = reference_values("banana", 1, i)
+    assert abs(vl[i] / ref_vl - 1) <= 1e-7, (vl[i], ref_vl)
+    assert abs(fs[i] / ref_fs - 1) <= 1e-7, (fs[i], ref_fs)
+
+
+def test_multi_camera_bounds():
+    """Q of a camera set lies between the best single camera and the sum of all (for
+    both objectives: the integrand is a max over the cameras)."""
+    for name in ("three", "blobs3", "mixed"):
+        cams1, out1 = scene_results(name, 1)
+        singles = {tuple(c[0]): (out1[0][i], out1[1][i]) for i, c in enumerate(cams1)}
+        checked = 0
+        for k in (2, 3):
+            cams, out = scene_results(name, k)
+            for i, cam_set in enumerate(cams):
+                if not all(tuple(c) in singles for c in cam_set):
+                    continue
+                checked += 1
+                for obj in (0, 1):
+                    parts = [singles[tuple(c)][obj] for c in cam_set]
+                    assert max(parts) * (1 - 1e-12) <= out[obj][i] <= sum(parts) * (1 + 1e-12)
+                    # several cameras see more than the best one of them here
+                    assert out[obj][i] > max(parts) * (1 + 1e-6)
+        assert checked >= 2, name
+
+
+def test_duplicated_cameras_count_once():
+    """Two cameras at the same place see what one sees (q_a - q_b vanishes identically:
+    no spurious crossover events, no exceeded budget)."""
+    cams, out = scene_results("three", 1)
+    dup = np.repeat(cams[:2], 2, axis=1)  # (2, 2, 2): [[A, A], [B, B]]
+    vl, fs, _ = H.batched("grad", H.THREE, dup)
+    np.testing.assert_allclose(vl, out[0][:2], rtol=1e-12)
+    np.testing.assert_allclose(fs, out[1][:2], rtol=1e-12)
+
+
+# ===========================================================================
+# visible intervals
+# ===========================================================================
+@functools.cache
+def intervals_of(name):
+    if name == "banana":
+        cams, _ = scene_results("banana", 1)
+    else:
+        cams = camera_sets(name, 1)
+    fn = jax.jit(jax.vmap(ocp.visible_intervals, in_axes=(None, 0)))
+    out = fn(H.SCENES[name], jnp.asarray(cams))
+    return cams, [H.unstack_tree(out, i) for i in range(cams.shape[0])]
+
+
+def _compare_intervals(name, i, atol=1e-9):
+    cams, ivs = intervals_of(name)
+    spec = H.to_reference(H.SCENES[name])
+    ref = reference_visible_intervals(spec, cams[i, 0])
+    for curve, want in enumerate(ref):
+        got = ivs[i].to_list(0, curve)
+        assert len(got) == len(want), (curve, got, want)
+        if want:
+            np.testing.assert_allclose(np.array(got), np.array(want), rtol=0, atol=atol)
+    return ivs[i], ref
+
+
+@pytest.mark.parametrize("i", range(len(H.CAMERAS["three"][1])))
+def test_visible_intervals_match_reference(i):
+    iv, ref = _compare_intervals("three", i)
+    assert iv.start.shape == iv.end.shape == iv.visible.shape
+    assert iv.start.shape[:2] == (1, 3)
+    assert np.all(np.asarray(iv.tangent_count) >= 2)  # every closed curve has silhouettes
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["three", "banana"],
+)
+def test_visible_intervals_partition_and_agree_with_q(name, reference_specs):
+    """The intervals tile [0, 1] per curve, and integrating |x'| over the visible ones
+    (adaptive quadrature) gives the visible length Q."""
+    cams, ivs = intervals_of(name)
+    _, (vl, _) = scene_results(name, 1)
+    for i, iv in enumerate(ivs):
+        start, end = np.asarray(iv.start[0]), np.asarray(iv.end[0])
+        np.testing.assert_array_equal(start[:, 1:], end[:, :-1])
+        assert np.all(start[:, 0] == 0.0) and np.all(end[:, -1] == 1.0)
+        assert np.all(end >= start)
+        total = 0.0
+        for curve, spec in enumerate(reference_specs[name]):
+            for a, b in iv.to_list(0, curve):
+                total += integrate.quad(
+                    lambda t: np.linalg.norm(eval_curve(spec, np.array(t))[1]), a, b,
+                    epsabs=1e-13, epsrel=1e-13, limit=200,
+                )[0]
+        assert abs(vl[i] / total - 1) < 1e-9, (i, vl[i], total)
+
+
+# ===========================================================================
+# near-double roots
+# ===========================================================================
+def _assert_near_double(args):
+    camera, (t1, t2) = H.near_double_camera(*args)
+    # precondition: two tangency roots inside one cell of the library's default grid
+    cells = grid_cells(H.SCENES[args[0]])
+    assert 0 < t2 - t1 < 1 / cells and math.floor(cells * t1) == math.floor(cells * t2)
+    # ...and one of them is an end of a visible arc, so missing the pair changes Q
+    spec = H.to_reference(H.SCENES[args[0]])
+    ends = np.array([v for iv in reference_visible_intervals(spec, camera)[args[1]] for v in iv])
+    assert min(np.abs(ends - t1).min(), np.abs(ends - t2).min()) < 1e-9
+    return camera, (t1, t2)
+
+
+@pytest.mark.parametrize("j", range(len(KIDNEY_NEAR_DOUBLE)))
+def test_near_double_roots_kidney_bspline(j):
+    _assert_near_double(KIDNEY_NEAR_DOUBLE[j])
+    cams, (vl, fs) = scene_results("three", 1)
+    i = len(H.CAMERAS["three"][1]) + j
+    ref_vl, ref_fs = reference_values("three", 1, i)
+    assert abs(vl[i] / ref_vl - 1) <= 1e-7
+    assert abs(fs[i] / ref_fs - 1) <= 1e-7
+    _compare_intervals("three", i)
+
+
+@pytest.mark.parametrize("j", range(len(BANANA_NEAR_DOUBLE)))
+def test_near_double_roots_banana(j):
+    _assert_near_double(BANANA_NEAR_DOUBLE[j])
+    _compare_intervals("banana", len(H.BANANA_CAMERAS) + j)
+
+
+def test_banana_visible_intervals_match_reference():
+    for i in range(len(H.BANANA_CAMERAS)):
+        _compare_intervals("banana", i)
+
+
+# ===========================================================================
+# gradients against finite differences
+# ===========================================================================
+def fd_gradient(name, k, i, step=1e-4):
+    """Fourth-order central differences of (VisibleLength, Foreshortened) in every scene
+    parameter and camera coordinate, evaluated as batch members of the shared function."""
+    scene = H.SCENES[name]
+    cams = camera_sets(name, k)[i]
+    flat, unravel = ravel_pytree((scene, jnp.asarray(cams)))
+    flat = np.asarray(flat)
+    h = step * np.maximum(1.0, np.abs(flat))
+    points = []
+    for j in range(flat.size):
+        for m in (1, -1, 2, -2):
+            p = flat.copy()
+            p[j] += m * h[j]
+            points.append(unravel(jnp.asarray(p)))
+    scenes = [p[0] for p in points]
+    cam_sets = np.stack([np.asarray(p[1]) for p in points])
+    vl, fs, _ = H.batched("grad", scenes, cam_sets)
+    out = []
+    for values in (vl, fs):
+        v = values.reshape(flat.size, 4)
+        out.append((8 * (v[:, 0] - v[:, 1]) - (v[:, 2] - v[:, 3])) / (12 * h))
+    return flat.size, out[1]
+
+
+@pytest.mark.parametrize("name,k,i", [("three", 2, 0), ("three", 2, 1), ("mixed", 1, 0), ("mixed", 1, 1)])
+def test_gradient_matches_finite_differences(name, k, i):
+    cams, (vl, fs, grads) = scene_results(name, k)
+    grad = H.unstack_tree(grads, i)
+    flat_grad, _ = ravel_pytree((grad[0], jnp.asarray(grad[1])))
+    flat_grad = np.asarray(flat_grad)
+    n, fd = fd_gradient(name, k, i)
+    n_cam = 2 * k
+    assert rel(flat_grad, fd) < 1e-6
+    assert rel(flat_grad[-n_cam:], fd[-n_cam:]) < 1e-6  # the cameras alone
+    assert rel(flat_grad[:-n_cam], fd[:-n_cam]) < 1e-6  # the scene alone
+    assert np.linalg.norm(flat_grad[-n_cam:]) > 1e-3 and np.linalg.norm(flat_grad[:-n_cam]) > 1e-3
+
+
+# ===========================================================================
+# transformations: jit, vmap, grad, jacfwd, float32
+# ===========================================================================
+def _single(scene, cameras):
+    """Q, reverse-mode and forward-mode derivatives of one (unbatched) evaluation."""
+
+    def q(s, c):
+        return ocp.visibility(s, c, FS)
+
+    value, grad = jax.value_and_grad(q, (0, 1))(scene, cameras)
+    return value, grad, jax.jacfwd(q, (0, 1))(scene, cameras)
+
+
+single = jax.jit(_single)
+
+
+def test_vmap_equals_loop_of_single_evaluations():
+    """Values and gradients of the vmapped batch equal one jitted evaluation per camera
+    set (grad under vmap included)."""
+    cams, (vl, fs, grads) = scene_results("three", 2)
+    for i, cam_set in enumerate(cams):
+        value, grad, _ = single(H.THREE, jnp.asarray(cam_set))
+        assert abs(float(value) / fs[i] - 1) < 1e-13
+        assert rel(ravel_pytree(grad)[0], ravel_pytree(H.unstack_tree(grads, i))[0]) < 1e-12
+
+
+def test_jacfwd_equals_grad():
+    cams, _ = scene_results("three", 2)
+    for cam_set in cams:
+        _, grad, jac = single(H.THREE, jnp.asarray(cam_set))
+        assert rel(ravel_pytree(jac)[0], ravel_pytree(grad)[0]) < 1e-12
+
+
+def test_float32():
+    def to32(tree):
+        return jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), tree)
+
+    scene32 = to32(H.THREE)
+    assert scene32.dtype == jnp.float32
+    cams, (vl64, fs64) = scene_results("three", 1)
+    n = len(H.CAMERAS["three"][1])
+    vl, fs = H.batched("values", scene32, np.asarray(cams[:n], np.float32))
+    assert vl.dtype == np.float32 and fs.dtype == np.float32
+    np.testing.assert_allclose(vl, vl64[:n], rtol=1e-4)
+    np.testing.assert_allclose(fs, fs64[:n], rtol=1e-4)
+
+
+# ===========================================================================
+# user objectives and several cameras on one circle (closed forms)
+# ===========================================================================
+def foreshortened_formula(x, dx, c):
+    n = jnp.stack([-dx[1], dx[0]])
+    d = x - c
+    return jnp.dot(n, d) ** 2 / (jnp.dot(n, n) * jnp.dot(d, d))
+
+
+def inverse_distance(x, dx, c):
+    return 1.0 / jnp.linalg.norm(x - c)
+
+
+USER_FS = ocp.LocalObjective(foreshortened_formula)
+USER_ONE = ocp.LocalObjective(lambda x, dx, c: jnp.ones((), x.dtype))
+USER_INV = ocp.LocalObjective(inverse_distance)
+
+
+def _user_objectives(scene, cams):
+    def q(objective):
+        return ocp.visibility(scene, cams, objective)
+
+    values = {
+        "fs": q(FS),
+        "user_fs": q(USER_FS),
+        "plain_fs": q(lambda x, dx, c: foreshortened_formula(x, dx, c)),  # a bare function
+        "one": q(USER_ONE),
+        "vl": q(VL),
+        "inv": q(USER_INV),
+    }
+    grads = {
+        "fs": jax.grad(lambda c: ocp.visibility(scene, c, FS))(cams),
+        "user_fs": jax.grad(lambda c: ocp.visibility(scene, c, USER_FS))(cams),
+    }
+    return values, grads
+
+
+# unit circle; cameras at distance 3 at right angles (by symmetry the best camera
+# switches at 45 degrees), and a generic pair
+USER_CAMERAS = np.array([[[3.0, 0.0], [0.0, 3.0]], [[2.5, 1.0], [-1.2, 2.2]]])
+
+
+@functools.cache
+def user_objective_results():
+    fn = jax.jit(jax.vmap(_user_objectives, in_axes=(None, 0)))
+    out = fn(H.circle_scene(), jnp.asarray(USER_CAMERAS))
+    return jax.tree.map(np.asarray, out)
+
+
+def test_user_objective_equals_foreshortened():
+    values, grads = user_objective_results()
+    np.testing.assert_allclose(values["user_fs"], values["fs"], rtol=1e-13)
+    np.testing.assert_allclose(values["plain_fs"], values["fs"], rtol=1e-13)
+    assert rel(grads["user_fs"], grads["fs"]) < 1e-12
+    # a camera-independent q = 1 is the visible length
+    np.testing.assert_allclose(values["one"], values["vl"], rtol=1e-13)
+
+
+def test_two_cameras_on_a_circle_closed_forms():
+    """Crossovers: with cameras at (3, 0) and (0, 3) the better camera switches at 45
+    degrees, so Q = 2 int_{-alpha}^{pi/4} q r dphi for any q decreasing in the angle."""
+    values, grads = user_objective_results()
+    r, d = 1.0, 3.0
+    alpha = math.acos(r / d)
+    G = H.foreshortened_antiderivative
+    assert abs(values["vl"][0] / (r * (math.pi / 2 + 2 * alpha)) - 1) < 1e-12
+    assert abs(values["fs"][0] / (2 * (G(math.pi / 4, r, d) - G(-alpha, r, d))) - 1) < 1e-11
+
+    def inv(phi):
+        return r / math.sqrt(r * r + d * d - 2 * r * d * math.cos(phi))
+
+    want = 2 * integrate.quad(inv, -alpha, math.pi / 4, epsabs=0, epsrel=1e-13)[0]
+    assert abs(values["inv"][0] / want - 1) < 1e-11
+    # the reflection (x, y) -> (y, x) swaps the cameras, so it maps one gradient onto
+    # the other
+    g = grads["fs"][0]
+    assert rel(g[1], g[0, ::-1]) < 1e-10 and np.linalg.norm(g[0]) > 1e-3
+    # the generic pair against the reference
+    spec = H.to_reference(H.circle_scene())
+    for obj, key in (("visible_length", "vl"), ("foreshortened", "fs")):
+        ref = reference_visibility(spec, USER_CAMERAS[1], obj)
+        assert abs(values[key][1] / ref - 1) < 1e-10
+
+
+# ===========================================================================
+# events: the implicit-function derivatives against the thesis's closed forms
+# ===========================================================================
+def _events_fn(scene, camera):
+    """The tangency and shadow times of one camera, as visibility computes them."""
+    samples = _events.sample(jax.lax.stop_gradient(scene), grid_cells(scene))
+    cam = Vec(camera[0], camera[1])
+    iters = OPTIONS.newton_iterations
+    tan = _events.tangency_times(scene, cam, samples, OPTIONS.max_tangents, iters)
+    points = _events.tangency_points(scene, tan)
+    sh = _events.shadow_times(scene, cam, samples, points, OPTIONS.max_shadows, iters)
+    return tan.t, tan.valid, sh.t, sh.valid
+
+
+def _events_and_jacobian(scene, camera):
+    tan_t, tan_valid, sh_t, sh_valid = _events_fn(scene, camera)
+
+    def times(s, c):
+        out = _events_fn(s, c)
+        return out[0], out[2]
+
+    jac = jax.jacfwd(times, argnums=(0, 1))(scene, camera)
+    return (tan_t, tan_valid, sh_t, sh_valid), jac
+
+
+@functools.cache
+def events_and_jacobian():
+    return jax.jit(_events_and_jacobian)
+
+
+EVENT_CAMERAS = [(5.0, 4.0), (3.1, 0.2), (-4.5, 2.5)]
+
+
+@functools.cache
+def event_data(ci):
+    camera = jnp.asarray(EVENT_CAMERAS[ci])
+    (tan_t, tan_valid, sh_t, sh_valid), jac = events_and_jacobian()(H.THREE, camera)
+    return jax.tree.map(np.asarray, (tan_t, tan_valid, sh_t, sh_valid, jac))
+
+
+def _fd_roots(scene, camera, h=1e-6):
+    """Central differences of the event times (tangency, shadow) in the camera."""
+    fn = events_and_jacobian()
+    cols_t, cols_s = [], []
+    for e in np.eye(2):
+        (tp, _, sp, _), _ = fn(scene, jnp.asarray(camera + h * e))
+        (tm, _, sm, _), _ = fn(scene, jnp.asarray(camera - h * e))
+        cols_t.append((np.asarray(tp) - np.asarray(tm)) / (2 * h))
+        cols_s.append((np.asarray(sp) - np.asarray(sm)) / (2 * h))
+    return np.stack(cols_t, -1), np.stack(cols_s, -1)
+
+
+@pytest.mark.parametrize("ci", range(len(EVENT_CAMERAS)))
+def test_tangency_time_derivative_matches_eqs_5_28_and_5_32(ci, reference_specs):
+    C = np.asarray(EVENT_CAMERAS[ci])
+    tan_t, tan_valid, _, _, jac = event_data(ci)
+    dT_dC = jac[0][1]  # (m, r, 2)
+    fd_t, _ = _fd_roots(H.THREE, C)
+    specs = reference_specs["three"]
+    signs = []
+    for i, spec in enumerate(specs):
+        roots = tan_t[i][tan_valid[i]]
+        assert roots.size >= 2
+        for slot in np.nonzero(tan_valid[i])[0]:
+            T = tan_t[i, slot]
+            x, dx, ddx = eval_curve(spec, np.array(T))
+            n, n_dot = J @ dx, J @ ddx
+            got = dT_dC[i, slot]
+            # Eq. 5.28: dT/dC = n(T)^T / (n'(T)^T (x(T) - C))
+            assert rel(got, n / (n_dot @ (x - C))) < 1e-9
+            # Eq. 5.32 (n = R x', x - C replaced by |x - C| x'/|x'|) holds up to the sign
+            # sigma of x'.(x - C): the substitution 5.31 assumes x' points away from C
+            sigma = np.sign(dx @ (x - C))
+            eq532 = (np.linalg.norm(dx) / np.linalg.norm(x - C)) * (dx @ R) / (ddx @ R @ dx)
+            assert rel(got, sigma * eq532) < 1e-9
+            signs.append(sigma)
+            # and the root itself moves that way
+            assert rel(got, fd_t[i, slot]) < 1e-6
+    assert {1.0, -1.0} <= set(signs)  # both signs occur, so the sign is really tested
+
+
+@pytest.mark.parametrize("ci", range(len(EVENT_CAMERAS)))
+def test_shadow_time_derivative_matches_eq_5_17(ci, reference_specs):
+    """dS/dC for a shadow time S of the tangency point P = x(T): from Eq. 5.16,
+    dS/dC = (x(S) - P)^T R^T / (x'(S)^T R (C - P)). Eq. 5.17 as printed has R instead of
+    R^T in the numerator, i.e. the opposite sign; finite differences decide."""
+    C = np.asarray(EVENT_CAMERAS[ci])
+    tan_t, tan_valid, sh_t, sh_valid, jac = event_data(ci)
+    dS_dC = jac[1][1]
+    _, fd_s = _fd_roots(H.THREE, C)
+    specs = reference_specs["three"]
+    points = np.concatenate(
+        [eval_curve(spec, tan_t[i][tan_valid[i]])[0] for i, spec in enumerate(specs)]
+    )
+    checked = 0
+    for i, spec in enumerate(specs):
+        for slot in np.nonzero(sh_valid[i])[0]:
+            S = sh_t[i, slot]
+            X, dX, _ = eval_curve(spec, np.array(S))
+            # the tangency point whose ray through C hits x_i(S) beyond it
+            ray = points - C
+            line = np.abs(ray[:, 0] * (X - C)[1] - ray[:, 1] * (X - C)[0])
+            beyond = (ray @ (X - C)) > (ray * ray).sum(-1)
+            p = np.argmin(np.where(beyond, line / np.linalg.norm(ray, axis=-1), np.inf))
+            P = points[p]
+            assert line[p] <= 1e-9 * np.linalg.norm(ray[p]) * np.linalg.norm(X - C)
+            got = dS_dC[i, slot]
+            correct = ((X - P) @ R.T) / (dX @ R @ (C - P))
+            printed = ((X - P) @ R) / (dX @ R @ (C - P))
+            assert rel(got, correct) < 1e-9
+            assert rel(got, -printed) < 1e-9
+            assert rel(got, fd_s[i, slot]) < 1e-6
+            checked += 1
+    assert checked >= 2
+
+
+def test_event_time_derivatives_wrt_scene_match_finite_differences():
+    C = np.asarray(EVENT_CAMERAS[1])
+    tan_t, tan_valid, sh_t, sh_valid, jac = event_data(1)
+    flat, unravel = ravel_pytree(H.THREE)
+    # d(times)/d(scene leaves): flatten the Scene-shaped jacobians leaf by leaf
+    leaves_t = [np.asarray(a).reshape(*tan_t.shape, -1) for a in jax.tree.leaves(jac[0][0])]
+    leaves_s = [np.asarray(a).reshape(*sh_t.shape, -1) for a in jax.tree.leaves(jac[1][0])]
+    jt, js = np.concatenate(leaves_t, -1), np.concatenate(leaves_s, -1)
+    fn = events_and_jacobian()
+    h = 1e-6
+    flat = np.asarray(flat)
+    for j in range(flat.size):
+        e = np.zeros_like(flat)
+        e[j] = h
+        (tp, vp, sp, svp), _ = fn(unravel(jnp.asarray(flat + e)), jnp.asarray(C))
+        (tm, vm, sm, svm), _ = fn(unravel(jnp.asarray(flat - e)), jnp.asarray(C))
+        np.testing.assert_array_equal(np.asarray(vp), tan_valid)
+        np.testing.assert_array_equal(np.asarray(svm), sh_valid)
+        fd_t = (np.asarray(tp) - np.asarray(tm)) / (2 * h)
+        fd_s = (np.asarray(sp) - np.asarray(sm)) / (2 * h)
+        np.testing.assert_allclose(jt[..., j][tan_valid], fd_t[tan_valid], rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(js[..., j][sh_valid], fd_s[sh_valid], rtol=1e-5, atol=1e-7)
+    # invalid (padded) slots carry zero, finite derivatives
+    assert np.all(jt[~tan_valid] == 0) and np.all(js[~sh_valid] == 0)
+
+
+@pytest.mark.parametrize("j", range(len(KIDNEY_NEAR_DOUBLE)))
+def test_near_double_tangency_roots_are_both_found(j):
+    """Both roots of the pair, also the one hidden behind the curve (harmless to Q here,
+    not in general)."""
+    camera, (t1, t2) = H.near_double_camera(*KIDNEY_NEAR_DOUBLE[j])
+    (tan_t, tan_valid, _, _), _ = events_and_jacobian()(H.THREE, jnp.asarray(camera))
+    found = np.asarray(tan_t)[0][np.asarray(tan_valid)[0]]
+    for t in (t1, t2):
+        assert np.abs(found - t).min() < 1e-12
+
+
+# ===========================================================================
+# the root finder
+# ===========================================================================
+def test_hermite_extremum_is_exact_for_cubics():
+    # p(t) = (t - 0.2)(t - 0.9)(t + 1.5) on the cell [0, h]: its Hermite interpolant is p
+    h = 1.0
+    p = np.polynomial.Polynomial.fromroots([0.2, 0.9, -1.5])
+    dp = p.deriv()
+    s, value, turning = _roots.hermite_extremum(
+        jnp.asarray(p(0.0)), jnp.asarray(p(h)), jnp.asarray(dp(0.0)), jnp.asarray(dp(h)), h
+    )
+    crit = [c.real for c in dp.roots() if 0 < c.real < h]
+    assert len(crit) == 1 and bool(turning)
+    assert abs(float(s) * h - crit[0]) < 1e-14
+    assert abs(float(value) - p(crit[0])) < 1e-14
+    # monotone on the cell: no split, the value is the right end
+    s, value, turning = _roots.hermite_extremum(
+        jnp.asarray(0.0), jnp.asarray(1.0), jnp.asarray(0.5), jnp.asarray(2.0), 1.0
+    )
+    assert not bool(turning) and float(s) == 1.0 and float(value) == 1.0
+
+
+def _pair_function(t, a):
+    """F(t) = (t - a)(t - a - 0.002) - 1e-7 t: two roots 0.002 apart (inside one cell)."""
+    value = (t - a) * (t - a - 0.002) - 1e-7 * t
+    slope = 2 * t - 2 * a - 0.002 - 1e-7
+    return value, slope, jnp.ones_like(t)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _pair_roots(a, budget):
+    t = jnp.linspace(0.0, 1.0, 9)  # cells of 1/8
+    values, slopes, _ = _pair_function(t, a)
+    brackets = _roots.grid_brackets(t, values[None], slopes[None], budget)
+    roots, valid = _roots.solve_roots(_pair_function, a, brackets, 30, 1.0)
+    return brackets, roots, valid
+
+
+def test_grid_brackets_split_near_double_roots_and_count_them():
+    brackets, roots, valid = _pair_roots(jnp.asarray(0.4), 4)
+    assert int(brackets.count) == 2  # no sign change on the grid, yet two roots
+    exact = np.sort(np.polynomial.Polynomial([0.4 * 0.402, -(0.802 + 1e-7), 1.0]).roots().real)
+    got = np.sort(np.asarray(roots)[np.asarray(valid)])
+    # (the roots are 0.002 apart: F' = +-0.002 there, so F's rounding moves them ~1e-14)
+    np.testing.assert_allclose(got, exact, rtol=0, atol=1e-13)
+    # a budget too small for the roots reports the true count
+    small, _, _ = _pair_roots(jnp.asarray(0.4), 1)
+    assert int(small.count) == 2 and np.asarray(small.candidate).sum() == 1
+
+
+def test_implicit_root_derivative():
+    """d t*/da for t*(a) = the larger root of (t - a)(t - a - 0.002) = 1e-7 t."""
+
+    def larger_root(a):
+        _, roots, valid = _pair_roots(a, 4)
+        return jnp.max(jnp.where(valid, roots, -1.0))
+
+    a = 0.4
+    B = 2 * a + 0.002 + 1e-7
+    # root = (B + sqrt(B^2 - 4 a (a + 0.002))) / 2
+    disc = B * B - 4 * a * (a + 0.002)
+    want = (2 + (2 * B * 2 - 4 * (2 * a + 0.002)) / (2 * math.sqrt(disc))) / 2
+    got = float(jax.jit(jax.grad(larger_root))(jnp.asarray(a)))
+    assert abs(got / want - 1) < 1e-9
+    got_fwd = float(jax.jit(jax.jacfwd(larger_root))(jnp.asarray(a)))
+    assert abs(got_fwd / want - 1) < 1e-9
+
+
+# ===========================================================================
+# invalid input and exceeded budgets
+# ===========================================================================
+def _three_k1(cameras):
+    return H.batched("values", H.THREE, np.asarray(cameras, float).reshape(-1, 1, 2))
+
+
+def test_camera_inside_an_object_raises():
+    with pytest.raises(Exception, match="a camera lies inside an object"):
+        _three_k1([[3.8, 1.6]])  # the circle's centre
+    with pytest.raises(Exception, match="a camera lies inside an object"):
+        _three_k1([[5.0, 4.0], [-1.6, -0.6]])  # one good camera, one in the ellipse
+
+
+def test_nan_camera_raises():
+    with pytest.raises(Exception, match="a camera position is NaN or inf"):
+        _three_k1([[np.nan, 1.0]])
+    with pytest.raises(Exception, match="a camera position is NaN or inf"):
+        _three_k1([[5.0, np.inf]])
+
+
+def test_nan_scene_raises():
+    scene = jax.tree.map(lambda a: a.at[..., 0].set(jnp.nan) if a.ndim else a, H.circle_scene())
+    with pytest.raises(Exception, match="the scene contains NaN or inf control points"):
+        H.batched("grads", scene, np.array([[[3.0, 0.0]]]))
+
+
+def test_camera_on_a_grid_vertex_of_a_curve_raises():
+    # x(1/4) of the circle (3.8, 1.6), r = 0.5 is a node of the grid
+    assert grid_cells(H.THREE) % 4 == 0
+    with pytest.raises(Exception, match="(on a curve|inside an object)"):
+        _three_k1([[3.8, 2.1]])
+
+
+def test_camera_on_a_grid_vertex_says_on_a_curve():
+    with pytest.raises(Exception, match="a camera lies on a curve"):
+        _three_k1([[3.8, 2.1]])
+
+
+def test_camera_on_a_curve_between_grid_vertices_raises():
+    # x(t) of the circle for t = 0.3 cells, between two grid nodes
+    a = 2 * math.pi * 0.3 / grid_cells(H.THREE)
+    with pytest.raises(Exception, match="a camera lies on a curve"):
+        _three_k1([[3.8 + 0.5 * math.cos(a), 1.6 + 0.5 * math.sin(a)]])
+
+
+def test_camera_just_inside_a_curve_raises():
+    a = 2 * math.pi * 0.5 / grid_cells(H.THREE)
+    rho = 0.5 * (1 - 2e-4)
+    with pytest.raises(Exception, match="inside an object|on a curve"):
+        _three_k1([[3.8 + rho * math.cos(a), 1.6 + rho * math.sin(a)]])
+
+
+@pytest.mark.parametrize(
+    "cameras,match",
+    [
+        (np.zeros((2, 3)), r"cameras must have shape \(k, 2\)"),
+        (np.zeros((0, 2)), r"k >= 1"),
+        (np.zeros((1, 2, 2)), r"cameras must have shape \(k, 2\)"),
+    ],
+)
+def test_cameras_with_wrong_shape_raise(cameras, match):
+    with pytest.raises(ValueError, match=match):
+        ocp.visibility(H.THREE, jnp.asarray(cameras))
+    with pytest.raises(ValueError, match=match):
+        ocp.visible_intervals(H.THREE, jnp.asarray(cameras))
+
+
+def test_not_a_scene_raises():
+    cams = jnp.array([[5.0, 4.0]])
+    for bad in (list(H.THREE.curves), H.THREE.curves[1], np.zeros((4, 2))):
+        with pytest.raises(TypeError, match="scene must be an ocp_jax.Scene"):
+            ocp.visibility(bad, cams)
+        with pytest.raises(TypeError, match="scene must be an ocp_jax.Scene"):
+            ocp.visible_intervals(bad, cams)
+
+
+def test_bad_objective_raises():
+    with pytest.raises(TypeError, match="objective must be a local objective"):
+        ocp.visibility(H.THREE, jnp.array([[5.0, 4.0]]), 3.0)
+
+
+def test_exceeded_shadow_budget_raises():
+    """Small circle in front of a big one: its two silhouette rays cross the big circle
+    twice each beyond the small one, 4 shadow times > max_shadows = 1."""
+    C, cb, R_, cs, r = TWO_CIRCLE_CASES[0]
+    fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, ocp.VisibilityOptions(max_shadows=1)))
+    with pytest.raises(Exception, match=r"more shadow times on one curve than the budget of 1.*max_shadows="):
+        fn(H.two_circles(cb, R_, cs, r), jnp.asarray([C]))
+
+
+def test_exceeded_tangency_budget_raises():
+    fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, ocp.VisibilityOptions(max_tangents=1)))
+    with pytest.raises(Exception, match=r"more tangency times on one curve than the budget of 1.*max_tangents="):
+        fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"grid": 3}, "grid must be >= 8"),
+        ({"grid": 64.0}, "grid must be a positive int"),
+        ({"max_tangents": 0}, "max_tangents must be a positive int"),
+        ({"max_shadows": -2}, "max_shadows must be a positive int"),
+        ({"quadrature": 0}, "quadrature must be a positive int"),
+    ],
+)
+def test_invalid_options_raise(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ocp.VisibilityOptions(**kwargs)
