@@ -1,0 +1,130 @@
+"""Speed of the exact visibility engine, float64, after compilation.
+
+    python benchmarks/evaluate.py [--quick]
+
+Prints one table: per scene and number of cameras k, the compile time of value+grad,
+the time of Q and of value+grad (median of repeated calls), and the independent NumPy
+reference (tests/reference.py) at matching accuracy beside it, with the relative
+difference of the two Q values; then the throughput of a vmapped batch of 1024
+single-camera sets on the banana. Targets (issue 2, 2-core CPU): banana k=1 value+grad
+<= 200 us; 10 blobs k=4 <= 5 ms; batch >= 10,000 value+grad/s; compile <= 10 s; >= 100x
+faster than the reference.
+"""
+
+import argparse
+import os
+import statistics
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+import ocp_jax as ocp  # noqa: E402
+from ocp_jax import scenes  # noqa: E402
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+from helpers import to_reference  # noqa: E402
+from reference import reference_visibility  # noqa: E402
+
+OBJECTIVE = ocp.Foreshortened()
+REFERENCE_GRID = 1024  # root-detection grid of the reference (finds every event here)
+REFERENCE_TOL = 1e-10  # its adaptive quadrature tolerance: ~1e-10, matching ours
+
+
+def ring_cameras(scene: ocp.Scene, k: int) -> np.ndarray:
+    """k cameras on a circle around the scene, 0.8 of its bounding box's diagonal away."""
+    points = np.concatenate([np.asarray(c(jnp.linspace(0, 1, 64))) for c in scene.curves])
+    lo, hi = points.min(0), points.max(0)
+    centre, radius = 0.5 * (lo + hi), 0.8 * np.linalg.norm(hi - lo)
+    angle = 0.3 + 2 * np.pi * np.arange(k) / k
+    return centre + radius * np.stack([np.cos(angle), np.sin(angle)], -1)
+
+
+def rectangle_cameras(k: int, rng) -> np.ndarray:
+    """k cameras on the thesis's rectangle around the banana."""
+    (cx, cy), w, h = scenes.BANANA_RECTANGLE
+    s = rng.uniform(0, 2 * (w + h), k)
+    x = np.where(s < w, s, np.where(s < w + h, w, np.where(s < 2 * w + h, 2 * w + h - s, 0)))
+    y = np.where(s < w, 0, np.where(s < w + h, s - w, np.where(s < 2 * w + h, h, 2 * (w + h) - s)))
+    return np.stack([cx - w / 2 + x, cy - h / 2 + y], -1)
+
+
+def timed(fn, *args, budget=0.5):
+    """Median wall time of fn(*args) (blocked), over calls that fill `budget` seconds."""
+    times = []
+    while sum(times) < budget or len(times) < 5:
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+VALUE = jax.jit(lambda s, c: ocp.visibility(s, c, OBJECTIVE))
+VALUE_AND_GRAD = jax.jit(jax.value_and_grad(lambda s, c: ocp.visibility(s, c, OBJECTIVE), 1))
+
+
+def row(name, scene, cameras, reference=True):
+    cameras = jnp.asarray(cameras)
+    start = time.perf_counter()
+    VALUE_AND_GRAD.lower(scene, cameras).compile()
+    compile_s = time.perf_counter() - start
+    value = float(VALUE(scene, cameras))
+    t_value = timed(VALUE, scene, cameras)
+    t_grad = timed(VALUE_AND_GRAD, scene, cameras)
+    cells = [name, cameras.shape[0], f"{compile_s:.1f}", f"{1e6 * t_value:.0f}", f"{1e6 * t_grad:.0f}"]
+    if reference:
+        spec, cams = to_reference(scene), np.asarray(cameras)
+        start = time.perf_counter()
+        ref = reference_visibility(spec, cams, "foreshortened", REFERENCE_GRID, REFERENCE_TOL)
+        t_ref = time.perf_counter() - start
+        cells += [f"{1e3 * t_ref:.0f}", f"{t_ref / t_value:.0f}x", f"{abs(value / ref - 1):.1e}"]
+    else:
+        cells += ["-", "-", "-"]
+    return cells, value
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="k = 1 only, no reference")
+    args = parser.parse_args()
+    rng = np.random.default_rng(0)
+    print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, Foreshortened")
+    header = ["scene", "k", "compile s", "Q us", "Q+grad us", "NumPy ref ms", "speed-up", "|rel diff|"]
+    widths = [10, 2, 10, 9, 10, 13, 9, 10]
+    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
+    cases = [
+        ("circle", scenes.circle()),
+        ("banana", scenes.banana()),
+        ("blobs3", scenes.blobs(3)),
+        ("blobs10", scenes.blobs(10)),
+    ]
+    for name, scene in cases:
+        for k in (1,) if args.quick else (1, 2, 4):
+            if name == "banana":
+                cameras = rectangle_cameras(k, rng)
+            else:
+                cameras = ring_cameras(scene, k)
+            cells, _ = row(name, scene, cameras, reference=not args.quick)
+            print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
+
+    banana = scenes.banana()
+    batch = jnp.asarray(rectangle_cameras(1024, rng)[:, None, :])  # (1024, 1, 2)
+    per_set = jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE))
+    print("\nbanana, 1024 single-camera sets, value+grad:")
+    for label, fn in (
+        ("jit(vmap)", jax.jit(jax.vmap(per_set))),
+        ("jit(lax.map, batch_size=64)", jax.jit(lambda b: jax.lax.map(per_set, b, batch_size=64))),
+    ):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(batch))
+        compile_s = time.perf_counter() - start
+        t = timed(fn, batch, budget=2.0)
+        print(f"  {label:28s} {1024 / t:8.0f} per second   (first call {compile_s:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()
