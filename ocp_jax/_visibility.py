@@ -33,8 +33,9 @@ from ._events import (
     tangency_points,
     tangency_times,
 )
-from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
+from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength, as_local_objective
 from ._occlusion import orientation, visible_points
+from ._quadrature import gauss_legendre
 from ._scene import Scene
 from ._vec import Vec, cross, dot, norm, sub
 
@@ -50,6 +51,9 @@ class VisibilityOptions(eqx.Module):
       (Hermite split), but features much smaller than a cell need a finer grid.
     - `max_tangents`, `max_shadows`: root budgets per curve and camera; `max_crossovers`:
       per curve and pair of cameras. Exceeding one raises an error naming the option.
+    - `max_intervals`: per curve, the intervals between the events of all cameras that
+      are integrated (the budgets above are per camera and rarely all used at once); None
+      (default) takes the panels plus half of the cameras' event budgets.
     - `quadrature`: Gauss-Legendre nodes per interval; intervals are also cut at each
       curve's panel `breakpoints`. 16 nodes give ~1e-12 relative error for cameras at
       a fair distance; a camera very close to a curve makes q = cos^2 nearly singular
@@ -62,6 +66,7 @@ class VisibilityOptions(eqx.Module):
     max_tangents: int = eqx.field(static=True, default=8)
     max_shadows: int = eqx.field(static=True, default=16)
     max_crossovers: int = eqx.field(static=True, default=16)
+    max_intervals: int | None = eqx.field(static=True, default=None)
     quadrature: int = eqx.field(static=True, default=16)
     newton_iterations: int = eqx.field(static=True, default=8)
 
@@ -71,11 +76,12 @@ class VisibilityOptions(eqx.Module):
             "max_tangents",
             "max_shadows",
             "max_crossovers",
+            "max_intervals",
             "quadrature",
             "newton_iterations",
         ):
             value = getattr(self, name)
-            if name == "grid" and value is None:
+            if name in ("grid", "max_intervals") and value is None:
                 continue
             if not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"VisibilityOptions.{name} must be a positive int, got {value!r}.")
@@ -90,6 +96,18 @@ class CameraPartition(NamedTuple):
     visible: Bool[Array, "m e"]
     tangents: Roots
     shadows: Roots
+
+
+class Solution(NamedTuple):
+    """Q with everything the error checks need."""
+
+    value: Float[Array, ""]
+    partitions: CameraPartition  # batched over the cameras
+    crossovers: Roots | None
+    intervals_used: Int[Array, " m"]
+    max_intervals: int
+    samples: Samples
+    cameras: Vec
 
 
 def _cameras(cameras, dtype) -> Array:
@@ -118,11 +136,24 @@ def _camera_partition(scene, camera: Vec, samples, sense, options) -> CameraPart
     # The visibility decision carries no derivative.
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start + end)
-    x_mid, dx_mid, _ = materialize(jax.lax.stop_gradient(scene.components(t_mid)))
+    x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]))
     visible = visible_points(
         jax.lax.stop_gradient(camera), samples, sense, t_mid, x_mid, dx_mid
     )
     return CameraPartition(events, visible, tangents, shadows)
+
+
+def _integrand(t, args):
+    """max over the cameras that see the interval of q(x(t), x'(t), C) ||x'(t)||, for t of
+    shape (m, e, g) (the intervals' visibility `seen` has shape (k, m, e))."""
+    scene, cameras, objective, seen = args
+    x, dx = materialize(scene.components(t)[:2])
+    local = objective.evaluate(
+        x.map(lambda a: a[None]),
+        dx.map(lambda a: a[None]),
+        cameras.map(lambda a: a[:, None, None, None]),
+    )  # (k, m, e, g)
+    return jnp.max(jnp.where(seen[..., None], local, 0.0), axis=0) * norm(dx)
 
 
 def _closest_points(scene, cameras: Vec, samples: Samples):
@@ -194,6 +225,11 @@ def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
         )
         pieces.extend(crossovers.t[p] for p in range(len(pairs)))
     events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
+    # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
+    panels = pieces[0].shape[1]
+    budget = options.max_intervals or panels + (events.shape[1] - panels + 1) // 2
+    used = jnp.sum(events < 1.0, axis=1)
+    events = events[:, :budget]
     start, end = _intervals(events)
 
     # Viewability matrix: the camera's own interval that holds each union interval.
@@ -204,21 +240,15 @@ def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
     )(partitions.events, t_mid)  # (k, m, e)
     seen = jnp.take_along_axis(partitions.visible, own, axis=-1)
 
-    nodes, weights = np.polynomial.legendre.leggauss(options.quadrature)
-    half = 0.5 * (end - start)
-    nodes = jnp.asarray(nodes, start.dtype).reshape(1, 1, -1)
-    t = start[..., None] + half[..., None] * (nodes + 1.0)
-    x, dx, _ = materialize(scene.components(t))
-    local = objective.evaluate(
-        x.map(lambda a: a[None]), dx.map(lambda a: a[None]), cameras.map(lambda a: a[:, None, None, None])
-    )  # (k, m, e, g)
-    best = jnp.max(jnp.where(seen[..., None], local, 0.0), axis=0)
-    weights = jnp.asarray(weights, t.dtype).reshape(1, 1, -1)
-    value = jnp.sum(half * jnp.sum(weights * best * norm(dx), -1))
-    return value, partitions, crossovers, samples, cameras
+    value = jnp.sum(
+        gauss_legendre(_integrand, start, end, (scene, cameras, objective, seen), options.quadrature)
+    )
+    return Solution(value, partitions, crossovers, used, budget, samples, cameras)
 
 
-def _budget_checks(scene, value, partitions, crossovers, samples, cameras, options):
+def _checked(scene, solution: Solution, options: VisibilityOptions):
+    """Q, or an error if a camera or the scene is invalid or a budget was exceeded."""
+    value, partitions, crossovers, used, max_intervals, samples, cameras = solution
     finite, inside, on_curve = _check_cameras(*jax.lax.stop_gradient((scene, cameras)), samples)
     value = eqx.error_if(
         value,
@@ -248,6 +278,7 @@ def _budget_checks(scene, value, partitions, crossovers, samples, cameras, optio
         checks.append(
             (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")
         )
+    checks.append((used, max_intervals, "event intervals", "max_intervals"))
     for count, budget, what, name in checks:
         value = eqx.error_if(
             value,
@@ -269,7 +300,8 @@ def visibility(
     Q = sum_i int max_c [chi_i(t, C_c) q(x_i, x_i', C_c)] ||x_i'(t)|| dt: exact up to
     floating point (events from refined roots, Gauss-Legendre on smooth intervals), and
     differentiable with respect to the cameras, the scene's parameters and the objective's
-    parameters. Works under `jax.jit`, `jax.vmap` and `jax.grad`.
+    parameters. Compiled on first use (`equinox.filter_jit`); works under `jax.jit`,
+    `jax.vmap` and `jax.grad`.
 
     **Arguments:**
     - `scene`: the objects.
@@ -283,8 +315,12 @@ def visibility(
     Raises (also under jit, via `equinox.error_if`) when a camera is NaN, inside an object
     or on a curve, or when a root budget is exceeded.
     """
-    value, partitions, crossovers, samples, cameras = _solve(scene, cameras, objective, options)
-    return _budget_checks(scene, value, partitions, crossovers, samples, cameras, options)
+    return _visibility(scene, jnp.asarray(cameras), objective, options)
+
+
+@eqx.filter_jit
+def _visibility(scene, cameras, objective, options):
+    return _checked(scene, _solve(scene, cameras, objective, options), options)
 
 
 class VisibleIntervals(eqx.Module):
@@ -324,12 +360,15 @@ def visible_intervals(
 
     **Returns:** a `VisibleIntervals`; `.to_list(c, i)` for plain intervals.
     """
-    value, partitions, crossovers, samples, cameras = _solve(
-        scene, cameras, Foreshortened(), options
-    )
-    value = _budget_checks(scene, value, partitions, crossovers, samples, cameras, options)
-    events = jax.vmap(lambda ev: _intervals(ev))(partitions.events)
-    start, end = events
+    return _visible_intervals(scene, jnp.asarray(cameras), options)
+
+
+@eqx.filter_jit
+def _visible_intervals(scene, cameras, options):
+    solution = _solve(scene, cameras, VisibleLength(), options)
+    value = _checked(scene, solution, options)
+    partitions = solution.partitions
+    start, end = jax.vmap(_intervals)(partitions.events)
     start = eqx.error_if(start, ~jnp.isfinite(value), "ocp_jax: non-finite result.")
     return VisibleIntervals(
         start, end, partitions.visible, partitions.tangents.count, partitions.shadows.count

@@ -952,10 +952,46 @@ def test_exceeded_tangency_budget_raises():
         fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
 
 
+def test_exceeded_interval_budget_raises():
+    fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, ocp.VisibilityOptions(max_intervals=4)))
+    with pytest.raises(Exception, match=r"more event intervals on one curve than the budget of 4.*max_intervals="):
+        fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
+
+
+def test_interval_budget_does_not_change_q():
+    """The default max_intervals drops only padding: Q equals, to rounding, Q with every
+    event slot kept."""
+    everything = ocp.VisibilityOptions(max_intervals=10_000)
+    fn = jax.jit(lambda c: ocp.visibility(H.THREE, c, FS, everything))
+    cams, (_, fs, *_) = scene_results("three", 2)
+    assert abs(float(fn(jnp.asarray(cams[0]))) / fs[0] - 1) < 1e-14
+
+
+def test_gauss_legendre_leibniz_rule():
+    """d/d(a, b, w) int_a^b sin(w t) dt by the Leibniz rule equals the closed form."""
+    from ocp_jax._quadrature import gauss_legendre
+
+    def integral(a, b, w):
+        return gauss_legendre(lambda t, w: jnp.sin(w * t), a, b, w, 16)
+
+    a, b, w = jnp.array(0.3), jnp.array(1.7), jnp.array(2.5)
+    exact = (jnp.cos(w * a) - jnp.cos(w * b)) / w
+    assert abs(float(integral(a, b, w)) - float(exact)) < 1e-14
+    grads = jax.grad(integral, argnums=(0, 1, 2))(a, b, w)
+    want = (
+        -jnp.sin(w * a),
+        jnp.sin(w * b),
+        (b * jnp.sin(w * b) - a * jnp.sin(w * a)) / w - (jnp.cos(w * a) - jnp.cos(w * b)) / w**2,
+    )
+    np.testing.assert_allclose(np.array(grads), np.array(want), rtol=1e-13)
+    np.testing.assert_allclose(np.array(jax.jacfwd(integral, argnums=(0, 1, 2))(a, b, w)), np.array(want), rtol=1e-13)
+
+
 @pytest.mark.parametrize(
     "kwargs,match",
     [
         ({"grid": 3}, "grid must be >= 8"),
+        ({"max_intervals": 0}, "max_intervals must be a positive int"),
         ({"grid": 64.0}, "grid must be a positive int"),
         ({"max_tangents": 0}, "max_tangents must be a positive int"),
         ({"max_shadows": -2}, "max_shadows must be a positive int"),
