@@ -167,11 +167,14 @@ def _closest_points(scene, cameras: Vec, samples: Samples):
     lo, hi = t0 - h, t0 + h
     camera = cameras.map(lambda a: a[:, None])
     t = t0.T  # (m, k): the scene's layout, one row per curve
-    for _ in range(6):
+
+    def newton(_, t):
         x, dx, ddx = scene.components(jnp.mod(t, 1.0))
         sight = sub(x, camera.map(lambda a: a.T))
         step = dot(sight, dx) / _safe_nonzero(dot(dx, dx) + dot(sight, ddx))
-        t = jnp.clip(t - step, lo.T, hi.T)
+        return jnp.clip(t - step, lo.T, hi.T)
+
+    t = jax.lax.fori_loop(0, 6, newton, t)
     x, dx, _ = scene.components(jnp.mod(t, 1.0))
     offset = sub(camera.map(lambda a: a.T), x)
     sense = orientation(samples)[:, None]
