@@ -152,7 +152,8 @@ def grid_brackets(
 
 
 def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
-    """Safeguarded Newton on `fn(t, args) -> (F, dF/dt, scale)` inside each bracket.
+    """Safeguarded Newton on `fn(t, args) -> (F, dF/dt, scale)` inside each bracket, at
+    most `iterations` steps, stopping once no root moves by more than 4 eps.
 
     Returns the roots (no derivative attached) and whether each is a root: a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
@@ -161,20 +162,27 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     """
     lo, hi, t = brackets.lo, brackets.hi, brackets.guess
     confirmed = ~brackets.turning
+    eps = jnp.finfo(t.dtype).eps
 
-    def step(_, carry):
-        lo, hi, t, confirmed = carry
+    def step(carry):
+        i, lo, hi, t, confirmed, _ = carry
         value, slope, _ = fn(t, args)
         same = jnp.sign(value) == brackets.sign_lo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
         newton = t - value / _safe(slope)
         inside = (newton >= lo) & (newton <= hi)
-        return lo, hi, jnp.where(inside, newton, 0.5 * (lo + hi)), confirmed | ~same
+        new = jnp.where(inside, newton, 0.5 * (lo + hi))
+        settled = jnp.all((jnp.abs(new - t) <= 4 * eps) | ~brackets.candidate)
+        return i + 1, lo, hi, new, confirmed | ~same, settled
 
-    lo, hi, t, confirmed = jax.lax.fori_loop(0, iterations, step, (lo, hi, t, confirmed))
+    def running(carry):
+        i, *_, settled = carry
+        return (i < iterations) & ~settled
+
+    carry = (0, lo, hi, t, confirmed, False)
+    _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
     value, _, scale = fn(t, args)
-    eps = jnp.finfo(t.dtype).eps
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
     return t, valid
