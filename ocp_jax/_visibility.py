@@ -25,6 +25,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._events import (
     Roots,
+    bounding_discs,
     Samples,
     crossover_times,
     materialize,
@@ -58,7 +59,8 @@ class VisibilityOptions(eqx.Module):
       curve's panel `breakpoints`. 16 nodes give ~1e-12 relative error for cameras at
       a fair distance; a camera very close to a curve makes q = cos^2 nearly singular
       there (1e-11 at 1.2 r from a circle of radius r, 2e-8 at 1.05 r, 5e-6 at 1.01 r):
-      32 nodes bring these to 1e-15, 1e-15 and 7e-11.
+      32 nodes bring these to 1e-15, 1e-15 and 7e-11. A camera closer to a curve than
+      (2.5 / quadrature)^2 of its radius raises an error (for camera-dependent q).
     - `newton_iterations`: safeguarded Newton steps per root.
     """
 
@@ -186,16 +188,22 @@ def _safe_nonzero(x):
     return jnp.where(x == 0, 1.0, x)
 
 
-def _check_cameras(scene, cameras: Vec, samples: Samples):
+def _check_cameras(scene, cameras: Vec, samples: Samples, quadrature: int):
     """Cameras must be finite, off every curve (closer than sqrt(eps) times the scene's
     size counts as on it) and outside every object (on the outward side of the nearest
-    point of each curve)."""
+    point of each curve).
+
+    `too_close`: closer to a curve than (2.5 / quadrature)^2 of the curve's radius, where
+    a camera-dependent q is so nearly singular that `quadrature` nodes per interval no
+    longer reach ~1e-7 (measured on circles: 2e-8 at 5% of the radius, 5e-6 at 1%)."""
     distance, outward = _closest_points(scene, cameras, samples)
     size = jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y))
     on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=1)
     inside = jnp.any(outward < 0, axis=1) & ~on_curve
+    _, radius = bounding_discs(samples)
+    too_close = jnp.any(distance < (2.5 / quadrature) ** 2 * radius[None], axis=1) & ~on_curve
     finite = jnp.isfinite(cameras.x) & jnp.isfinite(cameras.y)
-    return finite, inside, on_curve
+    return finite, inside, on_curve, too_close
 
 
 def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
@@ -249,47 +257,55 @@ def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
     return Solution(value, partitions, crossovers, used, budget, samples, cameras)
 
 
-def _checked(scene, solution: Solution, options: VisibilityOptions):
-    """Q, or an error if a camera or the scene is invalid or a budget was exceeded."""
+def _checked(scene, solution: Solution, options: VisibilityOptions, camera_dependent: bool):
+    """Q, or an error if a camera or the scene is invalid or a budget was exceeded
+    (`camera_dependent`: whether q depends on the camera, see `_check_cameras`)."""
     value, partitions, crossovers, used, max_intervals, samples, cameras = solution
-    finite, inside, on_curve = _check_cameras(*jax.lax.stop_gradient((scene, cameras)), samples)
-    value = eqx.error_if(
-        value,
-        ~jnp.all(finite),
-        "ocp_jax: a camera position is NaN or inf; pass finite coordinates.",
+    finite, inside, on_curve, too_close = _check_cameras(
+        *jax.lax.stop_gradient((scene, cameras)), samples, options.quadrature
     )
-    value = eqx.error_if(
-        value,
-        jnp.any(inside),
-        "ocp_jax: a camera lies inside an object; cameras must be outside every curve.",
-    )
-    value = eqx.error_if(
-        value,
-        jnp.any(on_curve),
-        "ocp_jax: a camera lies on a curve; move it off the object.",
-    )
-    value = eqx.error_if(
-        value,
-        ~jnp.all(jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y)),
-        "ocp_jax: the scene contains NaN or inf control points.",
-    )
-    checks = [
+    failures = [
+        (~jnp.all(finite), "ocp_jax: a camera position is NaN or inf; pass finite coordinates."),
+        (
+            jnp.any(inside),
+            "ocp_jax: a camera lies inside an object; cameras must be outside every curve.",
+        ),
+        (jnp.any(on_curve), "ocp_jax: a camera lies on a curve; move it off the object."),
+        (
+            jnp.any(too_close) & camera_dependent,
+            f"ocp_jax: a camera is closer to a curve than {(2.5 / options.quadrature) ** 2:.2g} "
+            "of its radius, where the local objective is too nearly singular for "
+            f"{options.quadrature} quadrature nodes: move it away or pass "
+            "options=ocp.VisibilityOptions(quadrature=...) with more nodes.",
+        ),
+        (
+            ~jnp.all(jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y)),
+            "ocp_jax: the scene contains NaN or inf control points.",
+        ),
+    ]
+    budgets = [
         (partitions.tangents.count, options.max_tangents, "tangency times", "max_tangents"),
         (partitions.shadows.count, options.max_shadows, "shadow times", "max_shadows"),
     ]
     if crossovers is not None:
-        checks.append(
+        budgets.append(
             (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")
         )
-    checks.append((used, max_intervals, "event intervals", "max_intervals"))
-    for count, budget, what, name in checks:
-        value = eqx.error_if(
-            value,
-            jnp.any(count > budget),
-            f"ocp_jax: more {what} on one curve than the budget of {budget}: pass "
-            f"options=ocp.VisibilityOptions({name}=...) with a larger value.",
+    budgets.append((used, max_intervals, "event intervals", "max_intervals"))
+    for count, budget, what, name in budgets:
+        failures.append(
+            (
+                jnp.any(count > budget),
+                f"ocp_jax: more {what} on one curve than the budget of {budget}: pass "
+                f"options=ocp.VisibilityOptions({name}=...) with a larger value.",
+            )
         )
-    return value
+    # One check for all (each error_if is a conditional in the compiled program): the
+    # first failure's message is raised.
+    failed = jnp.stack([f for f, _ in failures])
+    return eqx.branched_error_if(
+        value, jnp.any(failed), jnp.argmax(failed), [message for _, message in failures]
+    )
 
 
 def visibility(
@@ -323,7 +339,9 @@ def visibility(
 
 @eqx.filter_jit
 def _visibility(scene, cameras, objective, options):
-    return _checked(scene, _solve(scene, cameras, objective, options), options)
+    objective = as_local_objective(objective)
+    solution = _solve(scene, cameras, objective, options)
+    return _checked(scene, solution, options, not objective.is_constant)
 
 
 class VisibleIntervals(eqx.Module):
@@ -369,7 +387,7 @@ def visible_intervals(
 @eqx.filter_jit
 def _visible_intervals(scene, cameras, options):
     solution = _solve(scene, cameras, VisibleLength(), options)
-    value = _checked(scene, solution, options)
+    value = _checked(scene, solution, options, False)
     partitions = solution.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
     start = eqx.error_if(start, ~jnp.isfinite(value), "ocp_jax: non-finite result.")

@@ -101,6 +101,16 @@ def test_circle_closed_forms(case):
     assert abs(fs[case] / H.circle_foreshortened(r, d) - 1) <= 1e-7
 
 
+def test_camera_too_close_for_the_quadrature_raises():
+    """At 0.5% of the radius q = cos^2 is too nearly singular for 16 nodes per interval
+    (Q would be off by ~1e-4): an error says so; VisibleLength (q = 1) is unaffected."""
+    cam = jnp.array([[1.005, 0.0]])
+    with pytest.raises(Exception, match="closer to a curve than 0.024 of its radius.*quadrature="):
+        ocp.visibility(H.circle_scene(), cam, FS)
+    q = ocp.visibility(H.circle_scene(), cam, VL)
+    assert abs(float(q) / H.circle_visible_length(1.0, 1.005) - 1) < 1e-12
+
+
 def test_foreshortened_quadrature_for_a_close_camera():
     """A camera close to a curve makes q = cos^2 nearly singular (poles (d - r) / r from
     the real axis): 16 nodes per panel keep the issue's 1e-7 down to d = 1.05 r
