@@ -45,12 +45,9 @@ def ring_cameras(scene: ocp.Scene, k: int) -> np.ndarray:
 
 
 def rectangle_cameras(k: int, rng) -> np.ndarray:
-    """k cameras on the thesis's rectangle around the banana."""
-    (cx, cy), w, h = scenes.BANANA_RECTANGLE
-    s = rng.uniform(0, 2 * (w + h), k)
-    x = np.where(s < w, s, np.where(s < w + h, w, np.where(s < 2 * w + h, 2 * w + h - s, 0)))
-    y = np.where(s < w, 0, np.where(s < w + h, s - w, np.where(s < 2 * w + h, h, 2 * (w + h) - s)))
-    return np.stack([cx - w / 2 + x, cy - h / 2 + y], -1)
+    """k random cameras on the thesis's rectangle around the banana."""
+    rectangle = ocp.RectangleBoundary(*scenes.BANANA_RECTANGLE)
+    return np.asarray(rectangle.cameras(jnp.asarray(rng.uniform(0, 1, (k, 1)))))
 
 
 def timed(fn, *args, budget=0.5, repeats=3):

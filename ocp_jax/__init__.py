@@ -14,6 +14,8 @@ from ._objectives import AbstractLocalObjective as AbstractLocalObjective
 from ._objectives import Foreshortened as Foreshortened
 from ._objectives import LocalObjective as LocalObjective
 from ._objectives import VisibleLength as VisibleLength
+from ._placement import AbstractPlacement as AbstractPlacement
+from ._placement import RectangleBoundary as RectangleBoundary
 from ._scene import Scene as Scene
 from ._visibility import VisibilityOptions as VisibilityOptions
 from ._visibility import VisibleIntervals as VisibleIntervals
