@@ -21,7 +21,8 @@ DEMO_CASES = (
 
 def _both_objectives(scene, cameras):
     """(Q, dQ/dcameras) for VisibleLength and for Foreshortened."""
-    return [jax.value_and_grad(visibility, 1)(scene, cameras, q) for q in (VisibleLength(), Foreshortened())]
+    objectives = (VisibleLength(), Foreshortened())
+    return [jax.value_and_grad(visibility, 1)(scene, cameras, q) for q in objectives]
 
 
 def demo() -> None:
@@ -37,13 +38,19 @@ def demo() -> None:
         start = time.perf_counter()
         results = jax.block_until_ready(fn(scene, cameras))
         run = time.perf_counter() - start
-        print(f"\n{name}, cameras {cameras.tolist()}  (compile {compiled:.1f} s, run {1e3 * run:.2f} ms)")
+        print(
+            f"\n{name}, cameras {cameras.tolist()}"
+            f"  (compile {compiled:.1f} s, run {1e3 * run:.2f} ms)"
+        )
         for objective, (value, grad) in zip(("VisibleLength", "Foreshortened"), results):
             grad = np.array2string(np.asarray(grad), precision=6, separator=", ").replace("\n", "")
             print(f"  {objective:14s} Q = {float(value):.10f}   dQ/dcameras = {grad}")
         seen = visible_intervals(scene, cameras)
         for c in range(cameras.shape[0]):
-            arcs = [[(round(a, 4), round(b, 4)) for a, b in seen.to_list(c, i)] for i in range(len(scene))]
+            arcs = [
+                [(round(a, 4), round(b, 4)) for a, b in seen.to_list(c, i)]
+                for i in range(len(scene))
+            ]
             print(f"  camera {c} sees the parameter arcs {arcs}")
 
 

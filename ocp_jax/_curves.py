@@ -2,9 +2,9 @@
 
 Every curve gives its position x(t) and the derivatives x'(t), x''(t) (Eq. 2.2) for any
 array of parameters t, and where integrals over it are cut into quadrature panels
-(`breakpoints`: uniform panels that include the B-spline knots and the seam). All of them are equinox
-Modules whose array fields are pytree leaves, so every quantity derived from them is
-differentiable with respect to the curve's parameters too.
+(`breakpoints`: uniform panels that include the B-spline knots and the seam). All of them
+are equinox Modules whose array fields are pytree leaves, so every quantity derived from
+them is differentiable with respect to the curve's parameters too.
 """
 
 import abc

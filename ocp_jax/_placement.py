@@ -30,8 +30,9 @@ class AbstractPlacement(eqx.Module):
         """`n_starts` random parameter sets of `n_cameras` cameras, uniform on the set."""
 
     @abc.abstractmethod
-    def candidates(self, per_unit: int) -> Float[Array, "n p"]:
-        """A grid of single-camera parameters covering the set."""
+    def candidates(self, resolution: int) -> Float[Array, "n p"]:
+        """A grid of single-camera parameters covering the set, `resolution` per side
+        (or per unit of the set's own measure, as the subclass documents)."""
 
     @abc.abstractmethod
     def violation(self, cameras: Float[ArrayLike, "k 2"]) -> Float[Array, ""]:
@@ -58,7 +59,9 @@ class RectangleBoundary(AbstractPlacement):
         self.width = jnp.asarray(width, float)
         self.height = jnp.asarray(height, float)
         if self.center.shape != (2,):
-            raise ValueError(f"RectangleBoundary center must have shape (2,), got {self.center.shape}.")
+            raise ValueError(
+                f"RectangleBoundary center must have shape (2,), got {self.center.shape}."
+            )
         if _is_concrete(self.width, self.height) and not (self.width > 0 and self.height > 0):
             raise ValueError(
                 f"RectangleBoundary width and height must be positive, got {float(self.width)} "
@@ -82,9 +85,9 @@ class RectangleBoundary(AbstractPlacement):
     def sample(self, key, n_cameras, n_starts):
         return jax.random.uniform(key, (n_starts, n_cameras, 1), self.center.dtype)
 
-    def candidates(self, per_unit):
-        """`per_unit` candidates per side (the thesis used 128), corners included once."""
-        side = jnp.arange(per_unit) / per_unit
+    def candidates(self, resolution):
+        """`resolution` candidates per side (the thesis used 128), corners included once."""
+        side = jnp.arange(resolution) / resolution
         w, h = self.width, self.height
         perimeter = 2 * (w + h)
         starts = jnp.stack([0.0, w, w + h, 2 * w + h]) / perimeter

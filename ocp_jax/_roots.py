@@ -39,7 +39,9 @@ class Brackets(NamedTuple):
     count: Int[Array, "*batch"]  # slots that held a root, before packing
 
 
-def _safe(x):
+def safe_divisor(x):
+    """x with its zeros replaced by 1: a divisor for quotients that are discarded (or
+    limits taken) where x = 0."""
     return jnp.where(x == 0, 1.0, x)
 
 
@@ -61,8 +63,8 @@ def hermite_extremum(f0, f1, d0, d1, h):
     A, B, c = 3.0 * a3, 2.0 * a2, a1
     disc = jnp.maximum(B * B - 4.0 * A * c, 0.0)
     q = -0.5 * (B + jnp.where(B >= 0, 1.0, -1.0) * jnp.sqrt(disc))
-    r_small = c / _safe(q)
-    r_large = q / _safe(A)
+    r_small = c / safe_divisor(q)
+    r_large = q / safe_divisor(A)
     s = jnp.where((r_small >= 0) & (r_small <= 1), r_small, r_large)
     turning = d0 * d1 < 0
     s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)
@@ -132,12 +134,12 @@ def grid_brackets(
     lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, index % 2 == 1)
     # Initial guess: regula falsi, then two Newton steps on the Hermite cubic (an
     # O(h^4) approximation of F), so that few steps on F itself are needed.
-    guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / _safe(f_lo - f_hi))
+    guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / safe_divisor(f_lo - f_hi))
     a1, a2, a3 = _hermite_coefficients(*cell_values)
     for _ in range(2):
         p = ((a3 * guess + a2) * guess + a1) * guess + cell_values[0]
         dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
-        guess = jnp.clip(guess - p / _safe(dp), lo, hi)
+        guess = jnp.clip(guess - p / safe_divisor(dp), lo, hi)
     start, width = t_nodes[cell], h[cell]
     return Brackets(
         start + width * lo,
@@ -170,7 +172,7 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
         same = jnp.sign(value) == brackets.sign_lo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
-        newton = t - value / _safe(slope)
+        newton = t - value / safe_divisor(slope)
         inside = (newton >= lo) & (newton <= hi)
         new = jnp.where(inside, newton, 0.5 * (lo + hi))
         settled = jnp.all((jnp.abs(new - t) <= 4 * eps) | ~brackets.candidate)

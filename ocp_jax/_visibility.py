@@ -25,8 +25,8 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._events import (
     Roots,
-    bounding_discs,
     Samples,
+    bounding_discs,
     crossover_times,
     materialize,
     sample,
@@ -37,6 +37,7 @@ from ._events import (
 from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength, as_local_objective
 from ._occlusion import orientation, visible_points
 from ._quadrature import gauss_legendre
+from ._roots import safe_divisor
 from ._scene import Scene
 from ._vec import Vec, cross, dot, norm, sub
 
@@ -100,15 +101,13 @@ class CameraPartition(NamedTuple):
     shadows: Roots
 
 
-class Solution(NamedTuple):
-    """Q with everything the error checks need."""
+class Events(NamedTuple):
+    """Every camera's partition of every curve, and what the checks and Q need with it."""
 
-    value: Float[Array, ""]
     partitions: CameraPartition  # batched over the cameras
-    crossovers: Roots | None
-    intervals_used: Int[Array, " m"]
-    max_intervals: int
+    crossovers: Roots | None  # batched over the pairs of cameras
     samples: Samples
+    sense: Float[Array, " m"]
     cameras: Vec
 
 
@@ -158,37 +157,29 @@ def _integrand(t, args):
     return jnp.max(jnp.where(seen[..., None], local, 0.0), axis=0) * norm(dx)
 
 
-def _closest_points(scene, cameras: Vec, samples: Samples):
-    """For every camera c and curve i, the point x_i(t*) nearest to C_c: the nearest grid
+def _closest_points(scene, cameras: Vec, samples: Samples, sense):
+    """For every curve i and camera c, the point x_i(t*) nearest to C_c: the nearest grid
     node, refined by safeguarded Newton on (x(t) - C) . x'(t) = 0 within its two cells.
-    Returns (distance, signed offset along the outward normal), arrays (k, m)."""
-    rel = sub(samples.x.map(lambda a: a[None]), cameras.map(lambda a: a[:, None, None]))
-    node = jnp.argmin(dot(rel, rel), axis=2)  # (k, m)
+    Returns (distance, signed offset along the outward normal), arrays (m, k)."""
+    camera = cameras.map(lambda a: a[None])  # (1, k)
+    rel = sub(samples.x.map(lambda a: a[:, None]), camera.map(lambda a: a[..., None]))
+    t0 = samples.t[jnp.argmin(dot(rel, rel), axis=2)]  # (m, k)
     h = samples.t[1] - samples.t[0]
-    t0 = samples.t[node]
-    lo, hi = t0 - h, t0 + h
-    camera = cameras.map(lambda a: a[:, None])
-    t = t0.T  # (m, k): the scene's layout, one row per curve
 
     def newton(_, t):
         x, dx, ddx = scene.components(jnp.mod(t, 1.0))
-        sight = sub(x, camera.map(lambda a: a.T))
-        step = dot(sight, dx) / _safe_nonzero(dot(dx, dx) + dot(sight, ddx))
-        return jnp.clip(t - step, lo.T, hi.T)
+        sight = sub(x, camera)
+        step = dot(sight, dx) / safe_divisor(dot(dx, dx) + dot(sight, ddx))
+        return jnp.clip(t - step, t0 - h, t0 + h)
 
-    t = jax.lax.fori_loop(0, 6, newton, t)
+    t = jax.lax.fori_loop(0, 6, newton, t0)
     x, dx, _ = scene.components(jnp.mod(t, 1.0))
-    offset = sub(camera.map(lambda a: a.T), x)
-    sense = orientation(samples)[:, None]
-    outward = -sense * cross(dx, offset) / _safe_nonzero(norm(dx))  # -J x' points out
-    return norm(offset).T, outward.T
+    offset = sub(camera, x)
+    outward = -sense[:, None] * cross(dx, offset) / safe_divisor(norm(dx))  # -J x' points out
+    return norm(offset), outward
 
 
-def _safe_nonzero(x):
-    return jnp.where(x == 0, 1.0, x)
-
-
-def _check_cameras(scene, cameras: Vec, samples: Samples, quadrature: int):
+def _check_cameras(scene, cameras: Vec, samples: Samples, sense, quadrature: int):
     """Cameras must be finite, off every curve (closer than sqrt(eps) times the scene's
     size counts as on it) and outside every object (on the outward side of the nearest
     point of each curve).
@@ -196,31 +187,29 @@ def _check_cameras(scene, cameras: Vec, samples: Samples, quadrature: int):
     `too_close`: closer to a curve than (2.5 / quadrature)^2 of the curve's radius, where
     a camera-dependent q is so nearly singular that `quadrature` nodes per interval no
     longer reach ~1e-7 (measured on circles: 2e-8 at 5% of the radius, 5e-6 at 1%)."""
-    distance, outward = _closest_points(scene, cameras, samples)
+    distance, outward = _closest_points(scene, cameras, samples, sense)
     size = jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y))
-    on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=1)
-    inside = jnp.any(outward < 0, axis=1) & ~on_curve
+    on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=0)
+    inside = jnp.any(outward < 0, axis=0) & ~on_curve
     _, radius = bounding_discs(samples)
-    too_close = jnp.any(distance < (2.5 / quadrature) ** 2 * radius[None], axis=1) & ~on_curve
+    too_close = jnp.any(distance < (2.5 / quadrature) ** 2 * radius[:, None], axis=0) & ~on_curve
     finite = jnp.isfinite(cameras.x) & jnp.isfinite(cameras.y)
     return finite, inside, on_curve, too_close
 
 
-def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
+def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Events:
+    """The events of every camera on every curve, and their crossovers (for several
+    cameras and a camera-dependent q)."""
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
-    objective = as_local_objective(objective)
-    cameras = _cameras(cameras, scene.dtype)
-    scene_sg = jax.lax.stop_gradient(scene)
-    samples = sample(scene_sg, options.grid or scene.grid_cells())
+    cameras = Vec.of(_cameras(cameras, scene.dtype))
+    samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = orientation(samples)
-    cameras = Vec.of(cameras)
     partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
         scene, cameras, samples, sense, options
     )
-    k = cameras.x.shape[0]
-    pieces = [scene.breakpoints()] + [partitions.events[c] for c in range(k)]
     crossovers = None
+    k = cameras.x.shape[0]
     if k > 1 and not objective.is_constant:
         pairs = np.array(list(itertools.combinations(range(k), 2)))
         crossovers = jax.vmap(
@@ -234,14 +223,22 @@ def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
             options.max_crossovers,
             options.newton_iterations,
         )
-        pieces.extend(crossovers.t[p] for p in range(len(pairs)))
-    events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
+    return Events(partitions, crossovers, samples, sense, cameras)
+
+
+def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
+    """Q by quadrature on the union of all events (with the curves' panel breakpoints),
+    and the intervals used per curve with their static budget."""
+    partitions, crossovers = events.partitions, events.crossovers
+    pieces = [scene.breakpoints(), *partitions.events]
+    if crossovers is not None:
+        pieces.extend(crossovers.t)
+    union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
     panels = pieces[0].shape[1]
-    budget = options.max_intervals or panels + (events.shape[1] - panels + 1) // 2
-    used = jnp.sum(events < 1.0, axis=1)
-    events = events[:, :budget]
-    start, end = _intervals(events)
+    budget = options.max_intervals or panels + (union.shape[1] - panels + 1) // 2
+    used = jnp.sum(union < 1.0, axis=1)
+    start, end = _intervals(union[:, :budget])
 
     # Viewability matrix: the camera's own interval that holds each union interval.
     t_mid = jax.lax.stop_gradient(0.5 * (start + end))
@@ -251,18 +248,18 @@ def _solve(scene: Scene, cameras, objective, options: VisibilityOptions):
     )(partitions.events, t_mid)  # (k, m, e)
     seen = jnp.take_along_axis(partitions.visible, own, axis=-1)
 
-    value = jnp.sum(
-        gauss_legendre(_integrand, start, end, (scene, cameras, objective, seen), options.quadrature)
-    )
-    return Solution(value, partitions, crossovers, used, budget, samples, cameras)
+    args = (scene, events.cameras, objective, seen)
+    value = jnp.sum(gauss_legendre(_integrand, start, end, args, options.quadrature))
+    return value, (used, budget)
 
 
-def _checked(scene, solution: Solution, options: VisibilityOptions, camera_dependent: bool):
-    """Q, or an error if a camera or the scene is invalid or a budget was exceeded
-    (`camera_dependent`: whether q depends on the camera, see `_check_cameras`)."""
-    value, partitions, crossovers, used, max_intervals, samples, cameras = solution
+def _checked(carrier, scene, events: Events, options, camera_dependent: bool, intervals=None):
+    """`carrier`, or an error if a camera or the scene is invalid or a budget was exceeded
+    (`camera_dependent`: whether q depends on the camera, see `_check_cameras`;
+    `intervals`: the union intervals used and their budget, where Q was integrated)."""
+    partitions, crossovers, samples = events.partitions, events.crossovers, events.samples
     finite, inside, on_curve, too_close = _check_cameras(
-        *jax.lax.stop_gradient((scene, cameras)), samples, options.quadrature
+        *jax.lax.stop_gradient((scene, events.cameras)), samples, events.sense, options.quadrature
     )
     failures = [
         (~jnp.all(finite), "ocp_jax: a camera position is NaN or inf; pass finite coordinates."),
@@ -291,7 +288,8 @@ def _checked(scene, solution: Solution, options: VisibilityOptions, camera_depen
         budgets.append(
             (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")
         )
-    budgets.append((used, max_intervals, "event intervals", "max_intervals"))
+    if intervals is not None:
+        budgets.append((*intervals, "event intervals", "max_intervals"))
     for count, budget, what, name in budgets:
         failures.append(
             (
@@ -304,7 +302,7 @@ def _checked(scene, solution: Solution, options: VisibilityOptions, camera_depen
     # first failure's message is raised.
     failed = jnp.stack([f for f, _ in failures])
     return eqx.branched_error_if(
-        value, jnp.any(failed), jnp.argmax(failed), [message for _, message in failures]
+        carrier, jnp.any(failed), jnp.argmax(failed), [message for _, message in failures]
     )
 
 
@@ -340,8 +338,9 @@ def visibility(
 @eqx.filter_jit
 def _visibility(scene, cameras, objective, options):
     objective = as_local_objective(objective)
-    solution = _solve(scene, cameras, objective, options)
-    return _checked(scene, solution, options, not objective.is_constant)
+    events = _events(scene, cameras, objective, options)
+    value, intervals = _value(scene, events, objective, options)
+    return _checked(value, scene, events, options, not objective.is_constant, intervals)
 
 
 class VisibleIntervals(eqx.Module):
@@ -386,11 +385,10 @@ def visible_intervals(
 
 @eqx.filter_jit
 def _visible_intervals(scene, cameras, options):
-    solution = _solve(scene, cameras, VisibleLength(), options)
-    value = _checked(scene, solution, options, False)
-    partitions = solution.partitions
+    events = _events(scene, cameras, VisibleLength(), options)
+    partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
-    start = eqx.error_if(start, ~jnp.isfinite(value), "ocp_jax: non-finite result.")
+    start = _checked(start, scene, events, options, False)
     return VisibleIntervals(
         start, end, partitions.visible, partitions.tangents.count, partitions.shadows.count
     )
