@@ -5,6 +5,10 @@ thesis); equation numbers in docstrings refer to it.
 """
 
 from . import scenes as scenes
+from ._baselines import SearchResult as SearchResult
+from ._baselines import exhaustive as exhaustive
+from ._baselines import greedy as greedy
+from ._baselines import slsqp as slsqp
 from ._curves import AbstractCurve as AbstractCurve
 from ._curves import BezierCurve as BezierCurve
 from ._curves import BSplineCurve as BSplineCurve
@@ -14,8 +18,15 @@ from ._objectives import AbstractLocalObjective as AbstractLocalObjective
 from ._objectives import Foreshortened as Foreshortened
 from ._objectives import LocalObjective as LocalObjective
 from ._objectives import VisibleLength as VisibleLength
+from ._optimize import OptimizeResult as OptimizeResult
+from ._optimize import optimize as optimize
 from ._placement import AbstractPlacement as AbstractPlacement
+from ._placement import Constraints as Constraints
+from ._placement import EqualityConstraint as EqualityConstraint
+from ._placement import FreePlacement as FreePlacement
+from ._placement import PolygonBoundary as PolygonBoundary
 from ._placement import RectangleBoundary as RectangleBoundary
+from ._placement import Region as Region
 from ._scene import Scene as Scene
 from ._visibility import VisibilityOptions as VisibilityOptions
 from ._visibility import VisibleIntervals as VisibleIntervals

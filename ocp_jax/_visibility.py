@@ -253,10 +253,11 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     return value, (used, budget)
 
 
-def _checked(carrier, scene, events: Events, options, camera_dependent: bool, intervals=None):
-    """`carrier`, or an error if a camera or the scene is invalid or a budget was exceeded
-    (`camera_dependent`: whether q depends on the camera, see `_check_cameras`;
-    `intervals`: the union intervals used and their budget, where Q was integrated)."""
+def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):
+    """Every check on the input and the budgets: a stacked array of failure flags and the
+    message of each (`camera_dependent`: whether q depends on the camera, see
+    `_check_cameras`; `intervals`: the union intervals used and their budget, where Q was
+    integrated)."""
     partitions, crossovers, samples = events.partitions, events.crossovers, events.samples
     finite, inside, on_curve, too_close = _check_cameras(
         *jax.lax.stop_gradient((scene, events.cameras)), samples, events.sense, options.quadrature
@@ -298,12 +299,16 @@ def _checked(carrier, scene, events: Events, options, camera_dependent: bool, in
                 f"options=ocp.VisibilityOptions({name}=...) with a larger value.",
             )
         )
+    return jnp.stack([f for f, _ in failures]), [message for _, message in failures]
+
+
+def _checked(carrier, scene, events: Events, options, camera_dependent: bool, intervals=None):
+    """`carrier`, or an error if a camera or the scene is invalid or a budget was exceeded
+    (arguments as for `_failures`)."""
+    failed, messages = _failures(scene, events, options, camera_dependent, intervals)
     # One check for all (each error_if is a conditional in the compiled program): the
     # first failure's message is raised.
-    failed = jnp.stack([f for f, _ in failures])
-    return eqx.branched_error_if(
-        carrier, jnp.any(failed), jnp.argmax(failed), [message for _, message in failures]
-    )
+    return eqx.branched_error_if(carrier, jnp.any(failed), jnp.argmax(failed), messages)
 
 
 def visibility(
@@ -341,6 +346,27 @@ def _visibility(scene, cameras, objective, options):
     events = _events(scene, cameras, objective, options)
     value, intervals = _value(scene, events, objective, options)
     return _checked(value, scene, events, options, not objective.is_constant, intervals)
+
+
+def valid_visibility(scene, cameras, objective, options) -> tuple[Array, Array]:
+    """(Q, valid) without raising: `valid` is False where `visibility` would raise (a
+    camera inside an object, on a curve or too close to it, an exceeded budget). For
+    optimisers and searches, which must step back from such placements, not stop."""
+    objective = as_local_objective(objective)
+    events = _events(scene, cameras, objective, options)
+    value, intervals = _value(scene, events, objective, options)
+    failed, _ = _failures(scene, events, options, not objective.is_constant, intervals)
+    return value, ~jnp.any(failed)
+
+
+def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | None = None):
+    """Distance from each camera to each curve, negative inside the object: shape (k, m).
+    Differentiable in the cameras (the gradient is the unit vector from the nearest point)."""
+    samples = sample(jax.lax.stop_gradient(scene), grid or scene.grid_cells())
+    distance, outward = _closest_points(
+        jax.lax.stop_gradient(scene), Vec.of(cameras), samples, orientation(samples)
+    )
+    return jnp.where(outward >= 0, distance, -distance).T
 
 
 class VisibleIntervals(eqx.Module):

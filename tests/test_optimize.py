@@ -1,0 +1,184 @@
+"""The multi-start optimiser and the discrete baselines.
+
+Small scenes (one ellipse or circle, a few starts) keep compilation short; each problem
+shape is optimised once per module (functools.cache) and shared by the tests.
+"""
+
+import functools
+import itertools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ocp_jax as ocp
+
+ELLIPSE = ocp.Scene([ocp.Ellipse(jnp.zeros(2), jnp.array([2.0, 1.0]))])
+RING_RADIUS = 6.0
+RING = ocp.EqualityConstraint(
+    lambda c: jnp.linalg.norm(c) - RING_RADIUS, jnp.array([-7.0, -7.0]), jnp.array([7.0, 7.0])
+)
+CIRCLE = ocp.Scene([ocp.Circle(jnp.array([0.0, 0.0]), 1.0)])
+BOX = ocp.Region(jnp.array([-3.0, -3.0]), jnp.array([3.0, 3.0]), clearance=0.5)
+SQUARE = ocp.RectangleBoundary(jnp.array([0.5, 0.0]), 10.0, 8.0)
+TWO_CIRCLES = ocp.Scene(
+    [ocp.Circle(jnp.array([-1.5, 0.0]), 1.0), ocp.Circle(jnp.array([1.8, 0.6]), 0.7)]
+)
+TRIANGLE = ocp.PolygonBoundary(jnp.array([[-6.0, -4.0], [6.0, -4.0], [0.0, 6.0]]))
+
+
+@functools.cache
+def ring_result():
+    """Foreshortened ellipse (semi-axes 2, 1), one camera on the circle |C| = 6 (an
+    equality constraint, augmented Lagrangian): by symmetry the optimum is broadside,
+    C = (0, +-6)."""
+    return ocp.optimize(ELLIPSE, ocp.Foreshortened(), RING, 1, n_starts=4, max_steps=60)
+
+
+@functools.cache
+def box_result():
+    """Visible length of a unit circle, one camera in a 6 x 6 box (smooth sin map) kept
+    0.5 away from it: 2 acos(1/d) grows with d, so the optimum is a corner."""
+    return ocp.optimize(CIRCLE, ocp.VisibleLength(), BOX, 1, n_starts=4, max_steps=60)
+
+
+@functools.cache
+def square_starts():
+    return SQUARE.sample(jax.random.key(3), 2, 4)
+
+
+@functools.cache
+def square_result():
+    """Two cameras on a rectangle around two circles (a parametrised boundary)."""
+    return ocp.optimize(
+        TWO_CIRCLES, ocp.Foreshortened(), SQUARE, 2, starts=square_starts(), max_steps=60
+    )
+
+
+def test_equality_constraint_known_optimum():
+    result = ring_result()
+    camera = np.asarray(result.cameras[0])
+    np.testing.assert_allclose(np.abs(camera), [0.0, RING_RADIUS], atol=1e-6)
+    assert result.violation <= 1e-6
+    assert abs(np.linalg.norm(camera) - RING_RADIUS) <= 1e-6
+    broadside = ocp.visibility(ELLIPSE, jnp.array([[0.0, RING_RADIUS]]), ocp.Foreshortened())
+    assert float(result.value) == pytest.approx(float(broadside), rel=1e-9)
+    # and no point of the ring does better (a scan every degree)
+    angles = np.linspace(0, np.pi, 181)
+    ring = RING_RADIUS * np.stack([np.cos(angles), np.sin(angles)], 1)
+    scan = jax.jit(jax.vmap(lambda c: ocp.visibility(ELLIPSE, c[None], ocp.Foreshortened())))
+    assert float(result.value) >= float(jnp.max(scan(jnp.asarray(ring)))) - 1e-9
+
+
+def test_region_known_optimum_at_a_corner():
+    result = box_result()
+    np.testing.assert_allclose(np.abs(np.asarray(result.cameras[0])), [3.0, 3.0], atol=1e-6)
+    assert float(result.value) == pytest.approx(2 * math.acos(1 / (3 * math.sqrt(2))), rel=1e-9)
+    assert result.violation <= 1e-8
+
+
+def test_region_keeps_the_clearance():
+    """Starts inside the clearance zone (or the object) end outside it."""
+    starts = BOX._params(jnp.array([[[0.2, 0.1]], [[1.2, 0.0]], [[-2.0, 2.5]], [[0.0, -1.3]]]))
+    result = ocp.optimize(CIRCLE, ocp.VisibleLength(), BOX, 1, starts=starts, max_steps=60)
+    assert result.start_status[0] == "invalid start"  # inside the circle: Q undefined
+    distances = np.linalg.norm(np.asarray(result.start_cameras[1:, 0]), axis=-1)
+    assert np.all(distances >= 1.5 - 1e-6)
+    assert float(BOX.violation(result.cameras, CIRCLE)) <= 1e-6
+
+
+@pytest.mark.parametrize(
+    "solve,scene,objective",
+    [
+        (ring_result, ELLIPSE, ocp.Foreshortened()),
+        (box_result, CIRCLE, ocp.VisibleLength()),
+        (square_result, TWO_CIRCLES, ocp.Foreshortened()),
+    ],
+)
+def test_returned_value_and_bookkeeping(solve, scene, objective):
+    result = solve()
+    assert float(result.value) == float(ocp.visibility(scene, result.cameras, objective))
+    assert float(result.value) == float(jnp.max(result.start_values))
+    assert result.num_evaluations == int(jnp.sum(result.num_steps))
+    assert result.history.shape[1] == 3
+    assert float(result.history[-1, 2]) <= float(result.value) + 1e-6
+
+
+def test_boundary_results_lie_on_it():
+    square = square_result()
+    assert float(SQUARE.violation(square.start_cameras.reshape(-1, 2))) <= 1e-8
+    assert all(s in ("converged", "max_steps") for s in square.start_status)
+
+
+def test_vmapped_starts_equal_single_solves():
+    batch = square_result()
+    for index in (0, 2):
+        single = ocp.optimize(
+            TWO_CIRCLES, ocp.Foreshortened(), SQUARE, 2,
+            starts=square_starts()[index : index + 1], max_steps=60,
+        )
+        np.testing.assert_allclose(single.cameras, batch.start_cameras[index], atol=1e-9)
+        assert int(single.num_steps[0]) == int(batch.num_steps[index])
+
+
+def test_optimize_beats_greedy_on_two_circles():
+    greedy = ocp.greedy(TWO_CIRCLES, ocp.Foreshortened(), SQUARE, 2, resolution=16)
+    # The optimum is at a corner, a kink of Q(s): BFGS creeps up on it (to ~1e-9)
+    assert float(square_result().value) >= float(greedy.value) * (1 - 1e-8)
+
+
+def test_greedy_and_exhaustive_match_brute_force():
+    """On 12 candidates (4 per side of a triangle), against plain loops over visibility."""
+    objective = ocp.Foreshortened()
+    candidates = np.asarray(TRIANGLE.cameras(TRIANGLE.candidates(4)))
+    assert candidates.shape == (12, 2)
+
+    def q(cams):
+        return float(ocp.visibility(TWO_CIRCLES, jnp.asarray(cams), objective))
+
+    # exhaustive: every pair
+    pairs = list(itertools.combinations(range(12), 2))
+    values = [q(candidates[list(p)]) for p in pairs]
+    best = candidates[list(pairs[int(np.argmax(values))])]
+    result = ocp.exhaustive(TWO_CIRCLES, objective, TRIANGLE, 2, resolution=4, chunk=16)
+    np.testing.assert_allclose(result.cameras, best, atol=1e-12)
+    assert float(result.value) == pytest.approx(max(values), rel=1e-12)
+    assert result.num_evaluations == 66
+    # greedy: the best single camera, then the best second one
+    first = candidates[int(np.argmax([q(c[None]) for c in candidates]))]
+    second = candidates[int(np.argmax([q(np.stack([first, c])) for c in candidates]))]
+    result = ocp.greedy(TWO_CIRCLES, objective, TRIANGLE, 2, resolution=4, chunk=16)
+    np.testing.assert_allclose(result.cameras, [first, second], atol=1e-12)
+    assert result.num_evaluations == 24
+    assert len(result.stage_values) == 2 and result.stage_values[0].shape == (12,)
+
+
+def test_greedy_drops_inadmissible_candidates():
+    """Region candidates within the clearance are never chosen."""
+    result = ocp.greedy(CIRCLE, ocp.VisibleLength(), BOX, 1, resolution=7, chunk=16)
+    distances = np.linalg.norm(np.asarray(result.candidates), axis=-1)
+    assert np.all(distances >= 1.5) and len(distances) == 49 - 9  # the 3 x 3 around the centre
+    np.testing.assert_allclose(np.abs(np.asarray(result.cameras[0])), [3.0, 3.0], atol=1e-12)
+
+
+def test_slsqp_from_the_same_starts():
+    result = ocp.slsqp(
+        TWO_CIRCLES, ocp.Foreshortened(), SQUARE, 2, starts=square_starts(), max_steps=60
+    )
+    assert result.start_values.shape == (4,)
+    assert result.num_evaluations > 4
+    assert float(result.value) <= float(square_result().value) + 1e-6
+    assert float(SQUARE.violation(result.cameras)) <= 1e-8
+
+
+def test_bad_input():
+    with pytest.raises(TypeError, match="needs a placement"):
+        ocp.optimize(CIRCLE, ocp.VisibleLength(), None, 1)
+    with pytest.raises(ValueError, match="n_cameras must be a positive int"):
+        ocp.optimize(CIRCLE, ocp.VisibleLength(), SQUARE, 0)
+    with pytest.raises(ValueError, match=r"starts must have shape \(n_starts, n_cameras=2, p\)"):
+        ocp.optimize(CIRCLE, ocp.VisibleLength(), SQUARE, 2, starts=jnp.zeros((3, 1, 1)))
+    with pytest.raises(ValueError, match="exceed max_evaluations"):
+        ocp.exhaustive(CIRCLE, ocp.VisibleLength(), SQUARE, 3, resolution=64, max_evaluations=1000)
