@@ -1,0 +1,140 @@
+"""Placement problems as JSON: the curves, where cameras may go, and the objective.
+
+    {
+      "curves": [
+        {"type": "bezier", "control_points": [[x, y], ...]},       # closed: first == last
+        {"type": "bspline", "control_points": [[x, y], ...], "degree": 3},
+        {"type": "circle", "center": [x, y], "radius": r},
+        {"type": "ellipse", "center": [x, y], "semi_axes": [a, b], "angle": 0.0}
+      ],
+      "placement": {"type": "rectangle", "center": [x, y], "width": w, "height": h}
+                 | {"type": "polygon", "corners": [[x, y], ...]}
+                 | {"type": "region", "lower": [x, y], "upper": [x, y],
+                    "polygon": [[x, y], ...] (optional), "clearance": 0.0 (optional)}
+                 | {"type": "free", "lower": [x, y], "upper": [x, y]},
+      "objective": "foreshortened" | "visible_length"      (optional, default foreshortened)
+    }
+
+Keys are the constructors' arguments. `load_problem` says which entry is wrong and why;
+`problem_to_json` writes the same form (not for an `EqualityConstraint`, whose g is code).
+"""
+
+import json
+import pathlib
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse
+from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength
+from ._placement import AbstractPlacement, FreePlacement, PolygonBoundary, RectangleBoundary, Region
+from ._scene import Scene
+
+__all__ = ["PlacementProblem", "load_problem", "problem_to_json"]
+
+# type name -> (class, required fields, optional fields)
+CURVES = {
+    "bezier": (BezierCurve, ("control_points",), ()),
+    "bspline": (BSplineCurve, ("control_points",), ("degree",)),
+    "circle": (Circle, ("center", "radius"), ()),
+    "ellipse": (Ellipse, ("center", "semi_axes"), ("angle",)),
+}
+PLACEMENTS = {
+    "rectangle": (RectangleBoundary, ("center", "width", "height"), ()),
+    "polygon": (PolygonBoundary, ("corners",), ()),
+    "region": (Region, ("lower", "upper"), ("polygon", "clearance")),
+    "free": (FreePlacement, ("lower", "upper"), ()),
+}
+OBJECTIVES = {"foreshortened": Foreshortened, "visible_length": VisibleLength}
+
+
+class PlacementProblem(NamedTuple):
+    scene: Scene
+    placement: AbstractPlacement
+    objective: AbstractLocalObjective
+
+
+def _build(entry: Any, kinds: dict, where: str):
+    if not isinstance(entry, dict) or "type" not in entry:
+        raise ValueError(f"{where} must be an object with a \"type\" ({', '.join(kinds)}).")
+    kind = entry["type"]
+    if kind not in kinds:
+        raise ValueError(f"{where}: unknown type {kind!r}; expected one of {', '.join(kinds)}.")
+    cls, required, optional = kinds[kind]
+    missing = [f for f in required if f not in entry]
+    unknown = sorted(set(entry) - {"type", *required, *optional})
+    if missing or unknown:
+        raise ValueError(
+            f"{where} ({kind}): missing {missing} / unknown {unknown}; a {kind} takes "
+            f"{list(required)} and optionally {list(optional)}."
+        )
+    fields = {k: v for k, v in entry.items() if k != "type"}
+    try:
+        arrays = {k: v if k == "degree" else np.asarray(v, float) for k, v in fields.items()}
+        return cls(**arrays)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"{where} ({kind}): {error}") from None
+
+
+def problem_from_dict(data: Any) -> PlacementProblem:
+    """A `PlacementProblem` from the JSON form's dictionary."""
+    if not isinstance(data, dict):
+        raise ValueError("A problem file must hold a JSON object with \"curves\" and \"placement\".")
+    unknown = sorted(set(data) - {"curves", "placement", "objective"})
+    if unknown:
+        raise ValueError(f"Unknown top-level keys {unknown}; expected curves, placement, objective.")
+    curves = data.get("curves")
+    if not isinstance(curves, list) or not curves:
+        raise ValueError("\"curves\" must be a non-empty list of curve objects.")
+    scene = Scene([_build(c, CURVES, f"curves[{i}]") for i, c in enumerate(curves)])
+    if "placement" not in data:
+        raise ValueError("The problem needs a \"placement\" (where cameras may go).")
+    placement = _build(data["placement"], PLACEMENTS, "placement")
+    name = data.get("objective", "foreshortened")
+    if name not in OBJECTIVES:
+        raise ValueError(f"objective: unknown {name!r}; expected one of {', '.join(OBJECTIVES)}.")
+    return PlacementProblem(scene, placement, OBJECTIVES[name]())
+
+
+def load_problem(path: str | pathlib.Path) -> PlacementProblem:
+    """Read a problem file (the JSON form above)."""
+    path = pathlib.Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"No problem file at {path}.") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(
+            f"{path} is not valid JSON: {error.msg} at line {error.lineno}, column {error.colno}."
+        ) from None
+    try:
+        return problem_from_dict(data)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def _entry(item, kinds: dict) -> dict:
+    for kind, (cls, required, optional) in kinds.items():
+        if type(item) is cls:
+            out = {"type": kind}
+            for name in (*required, *optional):
+                value = getattr(item, name)
+                if value is not None:
+                    out[name] = value if isinstance(value, int) else np.asarray(value).tolist()
+            return out
+    raise TypeError(f"{type(item).__name__} has no JSON form.")
+
+
+def problem_to_json(scene: Scene, placement: AbstractPlacement, objective=None) -> str:
+    """The JSON form of a problem (the inverse of `load_problem`)."""
+    objective = objective if objective is not None else Foreshortened()
+    names = {cls: name for name, cls in OBJECTIVES.items()}
+    if type(objective) not in names:
+        raise TypeError(f"{type(objective).__name__} has no JSON form (only {', '.join(OBJECTIVES)}).")
+    data = {
+        "curves": [_entry(c, CURVES) for c in scene.curves],
+        "placement": _entry(placement, PLACEMENTS),
+        "objective": names[type(objective)],
+    }
+    return json.dumps(data, indent=1)
+
