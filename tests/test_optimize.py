@@ -7,6 +7,9 @@ shape is optimised once per module (functools.cache) and shared by the tests.
 import functools
 import itertools
 import math
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -182,3 +185,24 @@ def test_bad_input():
         ocp.optimize(CIRCLE, ocp.VisibleLength(), SQUARE, 2, starts=jnp.zeros((3, 1, 1)))
     with pytest.raises(ValueError, match="exceed max_evaluations"):
         ocp.exhaustive(CIRCLE, ocp.VisibleLength(), SQUARE, 3, resolution=64, max_evaluations=1000)
+
+
+SHARDED = """
+import jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+import ocp_jax as ocp
+assert len(jax.devices()) == 2
+scene = ocp.Scene([ocp.Circle(jnp.array([-1.5, 0.0]), 1.0), ocp.Circle(jnp.array([1.8, 0.6]), 0.7)])
+placement = ocp.RectangleBoundary(jnp.array([0.5, 0.0]), 10.0, 8.0)
+starts = placement.sample(jax.random.key(3), 2, 4)[:3]  # 3 starts on 2 devices: padded
+result = ocp.optimize(scene, ocp.Foreshortened(), placement, 2, starts=starts, max_steps=60)
+np.save("{out}", np.asarray(result.start_cameras))
+"""
+
+
+def test_starts_sharded_over_two_devices(tmp_path):
+    """The same starts give the same results laid out over two (host) devices."""
+    out = tmp_path / "cameras.npy"
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    subprocess.run([sys.executable, "-c", SHARDED.format(out=out)], check=True, env=env)
+    np.testing.assert_allclose(np.load(out), square_result().start_cameras[:3], atol=1e-9)

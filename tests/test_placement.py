@@ -56,3 +56,89 @@ def test_rectangle_sample_and_candidates():
 def test_rectangle_rejects_bad_input(args, match):
     with pytest.raises(ValueError, match=match):
         ocp.RectangleBoundary(*args)
+
+
+ROOM = ocp.PolygonBoundary(jnp.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [2.0, 5.0], [0.0, 3.0]]))
+
+
+def test_polygon_boundary_walks_the_walls_by_arc_length():
+    perimeter = 4 + 3 + 2 * np.sqrt(8) + 3
+    s = np.array([0.0, 2.0, 4.0, 5.5, 7.0, 7.0 + np.sqrt(8), perimeter - 1.0]) / perimeter
+    want = [[0, 0], [2, 0], [4, 0], [4, 1.5], [4, 3], [2, 5], [0, 1]]
+    np.testing.assert_allclose(ROOM.cameras(jnp.asarray(s)[:, None]), want, atol=1e-12)
+    assert float(ROOM.violation(ROOM.cameras(jnp.linspace(0, 1, 101)[:, None]))) < 1e-12
+    assert float(ROOM.violation(jnp.array([[2.0, 1.0]]))) == pytest.approx(1.0)
+    grid = ROOM.cameras(ROOM.candidates(8))
+    assert grid.shape == (40, 2)  # 8 per wall, each corner once
+    np.testing.assert_allclose(grid[8], [4.0, 0.0], atol=1e-12)
+
+
+def test_rectangle_is_the_four_cornered_polygon():
+    as_polygon = ocp.PolygonBoundary(RECT.vertices())
+    s = jnp.linspace(-0.3, 1.7, 41)[:, None]
+    np.testing.assert_allclose(as_polygon.cameras(s), RECT.cameras(s), atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "corners,match",
+    [([[0.0, 0.0], [1.0, 0.0]], r"shape \(n, 2\) with n >= 3"),
+     ([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]], "zero-length edge"),
+     ([[0.0, 0.0], [1.0, 0.0], [0.0, np.nan]], "NaN or inf")],
+)
+def test_polygon_rejects_bad_corners(corners, match):
+    with pytest.raises(ValueError, match=match):
+        ocp.PolygonBoundary(jnp.asarray(corners))
+
+
+def test_region_map_sampling_and_candidates():
+    triangle = jnp.array([[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]])
+    region = ocp.Region(jnp.array([0.0, 0.0]), jnp.array([4.0, 4.0]), polygon=triangle)
+    # every parameter maps into the box; the box's corners are reached
+    u = jnp.array([[-10.0, 3.0], [np.pi / 2, -np.pi / 2], [0.0, 0.0]])
+    cams = np.asarray(region.cameras(u))
+    assert np.all((cams >= 0) & (cams <= 4))
+    np.testing.assert_allclose(cams[1:], [[4.0, 0.0], [2.0, 2.0]], atol=1e-12)
+    starts = region.cameras(region.sample(jax.random.key(1), 3, 50).reshape(-1, 2))
+    assert np.all(np.asarray(starts).sum(-1) <= 4.0)  # inside the triangle (16 tries each)
+    grid = np.asarray(region.cameras(region.candidates(5)))
+    assert len(grid) == 10 and np.all(grid.sum(-1) < 4.0 + 1e-12)  # the lower-left half, diagonal off
+
+
+def test_region_constraints_measure_the_clearance_and_the_polygon():
+    scene = ocp.Scene([ocp.Circle(jnp.array([0.0, 0.0]), 1.0)])
+    square = jnp.array([[-3.0, -3.0], [3.0, -3.0], [3.0, 3.0], [-3.0, 3.0]])
+    region = ocp.Region(jnp.array([-4.0, -4.0]), jnp.array([4.0, 4.0]), square, clearance=0.5)
+    cams = jnp.array([[2.0, 0.0], [0.0, 0.3], [3.5, 0.0]])
+    equal, at_least = region.constraints(cams, scene)
+    assert equal.shape == (0,)
+    # per camera: distance to the circle minus the clearance, then inside the square
+    np.testing.assert_allclose(at_least, [0.5, -1.2, 2.0, 1.0, 2.7, -0.5], atol=1e-9)
+    np.testing.assert_allclose(region.violations(cams, scene), [0.0, 1.2, 0.5], atol=1e-9)
+    # the gradient of the clearance is the unit vector away from the nearest point
+    grad = jax.grad(lambda c: region.constraints(c[None], scene).at_least[0])(jnp.array([1.2, 1.6]))
+    np.testing.assert_allclose(grad, [0.6, 0.8], atol=1e-8)
+
+
+def test_equality_constraint_starts_and_candidates_lie_on_the_set():
+    ring = ocp.EqualityConstraint(
+        lambda c: jnp.sum(c**2) - 4.0, jnp.array([-3.0, -3.0]), jnp.array([3.0, 3.0])
+    )
+    starts = ring.sample(jax.random.key(0), 2, 8)
+    np.testing.assert_allclose(np.linalg.norm(starts, axis=-1), 2.0, atol=1e-10)
+    grid = np.asarray(ring.candidates(9))
+    np.testing.assert_allclose(np.linalg.norm(grid, axis=-1), 2.0, atol=1e-10)
+    assert len(grid) >= 8 and len(np.unique(grid.round(6), axis=0)) == len(grid)
+    cams = jnp.array([[2.0, 0.0], [0.0, 3.0]])
+    np.testing.assert_allclose(ring.violations(cams, ocp.scenes.circle()), [0.0, 5.0], atol=1e-12)
+    assert float(ring.violation(cams)) == 0.0  # constraints are checked only with a scene
+
+
+def test_free_placement():
+    free = ocp.FreePlacement(jnp.array([-1.0, 2.0]), jnp.array([1.0, 3.0]))
+    starts = np.asarray(free.sample(jax.random.key(0), 2, 10))
+    assert starts.shape == (10, 2, 2)
+    assert np.all((starts[..., 0] >= -1) & (starts[..., 0] <= 1) & (starts[..., 1] >= 2) & (starts[..., 1] <= 3))
+    np.testing.assert_array_equal(free.cameras(jnp.asarray(starts[0])), starts[0])
+    assert free.candidates(3).shape == (9, 2)
+    with pytest.raises(ValueError, match="upper > lower"):
+        ocp.FreePlacement(jnp.array([0.0, 0.0]), jnp.array([1.0, 0.0]))
