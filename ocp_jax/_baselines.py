@@ -246,7 +246,8 @@ def slsqp(
         steps.append(out.nit)
     seconds = time.perf_counter() - clock
     tolerance = tolerance if tolerance is not None else (1e-6 if constraints else 1e-8)
+    finals = jnp.asarray(np.stack(finals))
+    paths = [jax.vmap(placement.cameras)(jnp.asarray(p)) for p in (starts, finals)]
     return _best(
-        problem, jnp.asarray(np.stack(finals)), tuple(status), jnp.asarray(steps), calls,
-        seconds, [], tolerance,
+        problem, finals, tuple(status), jnp.asarray(steps), calls, seconds, [], paths, tolerance
     )

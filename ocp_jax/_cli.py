@@ -2,14 +2,17 @@
 
     ocp-jax demo                              optimise 1 and 2 cameras on the banana
     ocp-jax optimize PROBLEM.json --cameras K [--starts N] [--max-steps M] [--greedy]
+                                              [--picture OUT.png]
     ocp-jax example                           print the banana problem as JSON
 """
 
 import argparse
+import pathlib
 import sys
 import time
 
 import jax
+import matplotlib
 import numpy as np
 
 from . import scenes
@@ -60,8 +63,20 @@ def demo() -> None:
     print("Scene: the banana (degree-18 closed Bezier); cameras on the 100 x 80 rectangle")
     print("around it; objective: foreshortened visible length (Eq. 3.13, corrected).")
     scene, placement = scenes.banana(), RectangleBoundary(*scenes.BANANA_RECTANGLE)
-    for k in (1, 2):
-        _run(scene, placement, Foreshortened(), k, 16, 100, True, True)
+    results = [_run(scene, placement, Foreshortened(), k, 16, 100, True, True) for k in (1, 2)]
+    _picture(scene, placement, results[-1], pathlib.Path("ocp_jax_demo.png"))
+
+
+def _picture(scene, placement, result, path: pathlib.Path) -> None:
+    """What the optimised cameras see, written to `path`."""
+    matplotlib.use("Agg")
+    from . import plot
+
+    ax = plot.plot_scene(scene, result.cameras, placement)
+    k = result.cameras.shape[0]
+    ax.set_title(f"{k} camera(s), Q = {float(result.value):.4f}")
+    ax.figure.savefig(path, dpi=120, bbox_inches="tight")
+    print(f"\nPicture of the {k}-camera placement: {path.resolve()}")
 
 
 def optimize_file(args) -> None:
@@ -72,8 +87,10 @@ def optimize_file(args) -> None:
         sys.exit(f"ocp-jax: {error}")
     print(f"{args.problem}: {len(problem.scene)} curve(s), {type(problem.placement).__name__}, "
           f"{type(problem.objective).__name__}")
-    _run(problem.scene, problem.placement, problem.objective, args.cameras, args.starts,
-         args.max_steps, args.greedy, True)
+    result = _run(problem.scene, problem.placement, problem.objective, args.cameras,
+                  args.starts, args.max_steps, args.greedy, True)
+    if args.picture:
+        _picture(problem.scene, problem.placement, result, pathlib.Path(args.picture))
 
 
 def main(argv=None) -> None:
@@ -88,6 +105,7 @@ def main(argv=None) -> None:
     run.add_argument("--starts", type=int, default=16, help="random starts (default 16)")
     run.add_argument("--max-steps", type=int, default=100, help="BFGS steps per start")
     run.add_argument("--greedy", action="store_true", help="also run the greedy baseline")
+    run.add_argument("--picture", metavar="PNG", help="write a picture of the result here")
     commands.add_parser("example", help="print the banana problem in the JSON form")
     args = parser.parse_args(argv)
     if args.command in (None, "demo"):

@@ -135,6 +135,11 @@ def _advance(solver, problem, carry, multipliers, penalty, n_steps, max_steps):
 
 
 @eqx.filter_jit
+def _cameras_of(placement, params):
+    return jax.vmap(placement.cameras)(params)
+
+
+@eqx.filter_jit
 def _values(problem, params):
     return problem.values(params)
 
@@ -188,7 +193,8 @@ class OptimizeResult(eqx.Module):
       evaluations over all starts;
     - `violation`: the best placement's constraint violation;
     - `seconds`: wall time; `history` (n, 3): seconds, evaluations and best Q so far,
-      after each chunk of steps (for constrained placements, the best merit -L L).
+      after each chunk of steps (for constrained placements, the best merit -L L);
+    - `paths` (n + 1, s, k, 2): every start's cameras at the start and after each chunk.
     """
 
     cameras: Float[Array, "k 2"]
@@ -201,9 +207,10 @@ class OptimizeResult(eqx.Module):
     violation: float
     seconds: float
     history: Float[Array, "n 3"]
+    paths: Float[Array, "n s k 2"]
 
 
-def _best(problem, params, status, num_steps, evaluations, seconds, history, tolerance):
+def _best(problem, params, status, num_steps, evaluations, seconds, history, paths, tolerance):
     """The best admissible start, its Q checked by `visibility`."""
     placement, scene = problem.placement, problem.scene
     q, valid = _values(problem, params)
@@ -229,6 +236,7 @@ def _best(problem, params, status, num_steps, evaluations, seconds, history, tol
         violation=float(violation[best]),
         seconds=seconds,
         history=jnp.asarray(np.array(history).reshape(-1, 3)),
+        paths=jnp.stack(paths),
     )
 
 
@@ -300,6 +308,7 @@ def optimize(
 
     clock, evaluations, history = time.perf_counter(), 0, []
     total_steps = jnp.zeros(params.shape[:1], int)
+    paths = [_cameras_of(placement, params)[:count]]
     last_report, last_violation = clock, None
     for outer in range(outer_iterations if constrained else 1):
         state = _init(solver, problem, params, multipliers, penalty)
@@ -312,6 +321,7 @@ def optimize(
             best = float(jnp.nanmax(jnp.where(valid_start, -carry[1].f_info.f, -jnp.inf)))
             now = time.perf_counter()
             history.append((now - clock, evaluations, best * float(problem.scale)))
+            paths.append(_cameras_of(placement, carry[0])[:count])
             if progress and now - last_report > 1.0:
                 running = int(jnp.sum(~carry[2]))
                 print(
@@ -345,4 +355,6 @@ def optimize(
     params, total_steps = params[:count], total_steps[:count]
     status = _status(*(np.asarray(a[:count]) for a in (stopped, result, valid_start)))
     seconds = time.perf_counter() - clock
-    return _best(problem, params, status, total_steps, evaluations, seconds, history, tolerance)
+    return _best(
+        problem, params, status, total_steps, evaluations, seconds, history, paths, tolerance
+    )

@@ -180,6 +180,18 @@ class AbstractBoundary(AbstractPlacement):
     def distances(self, cameras):
         return jnp.min(_segment_distances(cameras, self.vertices()), axis=1)
 
+    def arc_fraction(self, cameras: Float[ArrayLike, "k 2"]) -> Float[Array, " k"]:
+        """The parameter s in [0, 1) of each camera's nearest point of the chain (the
+        inverse of `cameras` on the chain)."""
+        cameras = jnp.atleast_2d(jnp.asarray(cameras, float))
+        vertices = self.vertices()
+        edges, lengths = _polygon_edges(vertices)
+        edge = jnp.argmin(_segment_distances(cameras, vertices), axis=1)
+        along = jnp.sum((cameras - vertices[edge]) * edges[edge], -1) / lengths[edge] ** 2
+        start = (jnp.cumsum(lengths) - lengths)[edge]
+        travelled = start + jnp.clip(along, 0.0, 1.0) * lengths[edge]
+        return jnp.mod(travelled / jnp.sum(lengths), 1.0)
+
 
 class PolygonBoundary(AbstractBoundary):
     """Cameras on the walls of a polygonal room (a closed polygon, any orientation).

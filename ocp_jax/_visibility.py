@@ -21,7 +21,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._events import (
     Roots,
@@ -373,14 +373,16 @@ class VisibleIntervals(eqx.Module):
     """What each camera sees: on curve i, camera c sees [start, end] where `visible`.
 
     Arrays of shape (k, m, e) (padded: zero-length intervals at t = 1); `to_list` gives
-    merged Python intervals.
+    merged Python intervals. The events that cut them: `tangents` (tangency times, where
+    the line of sight grazes curve i) and `shadows` (where a grazing ray meets a curve
+    again), each `Roots(t, valid, count)` with t of shape (k, m, r).
     """
 
     start: Float[Array, "k m e"]
     end: Float[Array, "k m e"]
     visible: Bool[Array, "k m e"]
-    tangent_count: Int[Array, "k m"]
-    shadow_count: Int[Array, "k m"]
+    tangents: Roots
+    shadows: Roots
 
     def to_list(self, camera: int, curve: int) -> list[tuple[float, float]]:
         """Merged visible parameter intervals of `curve` seen by `camera` (a visible arc
@@ -415,6 +417,4 @@ def _visible_intervals(scene, cameras, options):
     partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
     start = _checked(start, scene, events, options, False)
-    return VisibleIntervals(
-        start, end, partitions.visible, partitions.tangents.count, partitions.shadows.count
-    )
+    return VisibleIntervals(start, end, partitions.visible, partitions.tangents, partitions.shadows)

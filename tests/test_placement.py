@@ -142,3 +142,9 @@ def test_free_placement():
     assert free.candidates(3).shape == (9, 2)
     with pytest.raises(ValueError, match="upper > lower"):
         ocp.FreePlacement(jnp.array([0.0, 0.0]), jnp.array([1.0, 0.0]))
+
+
+def test_arc_fraction_inverts_the_walk():
+    s = jnp.array([0.0, 0.13, 0.5, 0.77, 0.999])
+    np.testing.assert_allclose(ROOM.arc_fraction(ROOM.cameras(s[:, None])), s, atol=1e-12)
+    np.testing.assert_allclose(RECT.arc_fraction(jnp.array([[0.0, -25.0]])), [50 / 360], atol=1e-12)

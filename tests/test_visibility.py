@@ -408,7 +408,7 @@ def test_visible_intervals_match_reference(i):
     iv, ref = _compare_intervals("three", i)
     assert iv.start.shape == iv.end.shape == iv.visible.shape
     assert iv.start.shape[:2] == (1, 3)
-    assert np.all(np.asarray(iv.tangent_count) >= 2)  # every closed curve has silhouettes
+    assert np.all(np.asarray(iv.tangents.count) >= 2)  # every closed curve has silhouettes
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,224 @@
+"""Pictures of scenes, cameras, what they see, objective landscapes and optimiser runs.
+
+matplotlib only; every function draws into `ax` (a new figure when None), returns the
+Axes and never calls `show()`, so it works headless (Agg) and in notebooks alike.
+Camera c is drawn in colour `CAMERA_COLOURS[c % 10]` (matplotlib's tab10).
+"""
+
+import jax.numpy as jnp
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection
+
+from ._baselines import _values_of_sets
+from ._objectives import Foreshortened, as_local_objective
+from ._optimize import OptimizeResult
+from ._placement import AbstractBoundary, AbstractPlacement, Region
+from ._scene import Scene
+from ._visibility import VisibilityOptions, visible_intervals
+
+__all__ = ["CAMERA_COLOURS", "plot_landscape", "plot_optimization", "plot_scene"]
+
+CAMERA_COLOURS = plt.get_cmap("tab10").colors
+OBJECT_COLOUR = "0.65"
+SHARED_COLOUR = "black"
+
+
+def _axes(ax):
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 5))
+    return ax
+
+
+def _curve_points(scene: Scene, t: np.ndarray) -> np.ndarray:
+    """Points (m, n, 2) of every curve at the parameters t (n,)."""
+    return np.asarray(scene.derivatives(jnp.broadcast_to(jnp.asarray(t), (len(scene), len(t))))[0])
+
+
+def _runs(points: np.ndarray, mask: np.ndarray) -> list[np.ndarray]:
+    """The polyline's pieces over the runs of consecutive segments j (point j to j + 1)
+    where mask[j], each as one polyline (so that antialiasing does not show the joins)."""
+    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    starts, ends = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    return [points[a : b + 1] for a, b in zip(starts, ends)]
+
+
+def plot_placement(placement: AbstractPlacement, ax=None, **style):
+    """The set where cameras may go: a boundary's walls, a region's box and polygon, or
+    (other placements) its candidate points."""
+    ax = _axes(ax)
+    style = {"color": "0.3", "linestyle": "--", "linewidth": 1, **style}
+    if isinstance(placement, AbstractBoundary):
+        corners = np.asarray(placement.vertices())
+        ax.plot(*np.vstack([corners, corners[:1]]).T, **style)
+    elif isinstance(placement, Region):
+        lo, hi = np.asarray(placement.lower), np.asarray(placement.upper)
+        ax.plot([lo[0], hi[0], hi[0], lo[0], lo[0]], [lo[1], lo[1], hi[1], hi[1], lo[1]], **style)
+        if placement.polygon is not None:
+            polygon = np.asarray(placement.polygon)
+            ax.plot(*np.vstack([polygon, polygon[:1]]).T, **{**style, "linestyle": "-"})
+    else:
+        points = np.asarray(placement.cameras(placement.candidates(32)))
+        ax.plot(*points.T, ".", color=style["color"], markersize=2)
+    return ax
+
+
+def plot_scene(
+    scene: Scene,
+    cameras=None,
+    placement: AbstractPlacement | None = None,
+    *,
+    events: bool = False,
+    ax=None,
+    resolution: int = 2048,
+    options: VisibilityOptions = VisibilityOptions(),
+):
+    """The objects, the placement set, the cameras and what each sees.
+
+    Each camera's seen arcs are drawn thick in its colour; arcs seen by two or more
+    cameras get a thin black line along their middle. With `events=True` also the
+    occlusion events (the thesis's Figs. 3.1 and 5.1): tangency points (circles) with
+    their lines of sight, and shadow points (crosses) with the rays that reach them.
+
+    **Arguments:**
+    - `scene`; `cameras`: positions (k, 2) or None; `placement`: drawn dashed if given.
+    - `events`: draw the occlusion events; `resolution`: points per curve.
+    - `ax`: a matplotlib Axes (a new figure when None); `options`: the engine's options.
+
+    **Returns:** the Axes.
+    """
+    ax = _axes(ax)
+    t = np.linspace(0.0, 1.0, resolution + 1)
+    points = _curve_points(scene, t)
+    for curve in points:
+        ax.plot(*curve.T, color=OBJECT_COLOUR, linewidth=1.5, zorder=2)
+    if placement is not None:
+        plot_placement(placement, ax)
+    if cameras is not None:
+        cameras = np.atleast_2d(np.asarray(cameras, float))
+        seen = visible_intervals(scene, jnp.asarray(cameras), options)
+        middle = 0.5 * (t[:-1] + t[1:])
+        count = np.zeros((len(scene), resolution), int)
+        for c, camera in enumerate(cameras):
+            colour = CAMERA_COLOURS[c % len(CAMERA_COLOURS)]
+            for i in range(len(scene)):
+                mask = np.zeros(resolution, bool)
+                for a, b in seen.to_list(c, i):
+                    mask |= (middle >= a) & (middle <= b)
+                count[i] += mask
+                ax.add_collection(
+                    LineCollection(_runs(points[i], mask), colors=[colour], linewidths=4, zorder=3)
+                )
+            ax.plot(*camera, "o", color=colour, markersize=8, markeredgecolor="black", zorder=5)
+            if events:
+                _draw_events(ax, scene, camera, seen, c, colour)
+        for i in range(len(scene)):
+            shared = _runs(points[i], count[i] >= 2)
+            ax.add_collection(
+                LineCollection(shared, colors=[SHARED_COLOUR], linewidths=1, zorder=4)
+            )
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    return ax
+
+
+def _draw_events(ax, scene, camera, seen, c: int, colour):
+    """Tangency points with their lines of sight, shadow points with their rays."""
+    for roots, marker, style in ((seen.tangents, "o", "-"), (seen.shadows, "x", ":")):
+        t = np.asarray(roots.t[c])
+        valid = np.asarray(roots.valid[c])
+        points = np.asarray(scene.derivatives(jnp.asarray(t))[0])[valid]
+        for p in points:
+            ax.plot([camera[0], p[0]], [camera[1], p[1]], style, color=colour, linewidth=0.7, zorder=1)
+        ax.plot(*points.T, marker, color=colour, markersize=5, fillstyle="none", zorder=6)
+
+
+def plot_landscape(
+    scene: Scene,
+    placement: AbstractPlacement,
+    cameras=None,
+    index: int = 0,
+    objective=Foreshortened(),
+    *,
+    result: OptimizeResult | None = None,
+    resolution: int = 256,
+    ax=None,
+    options: VisibilityOptions = VisibilityOptions(),
+):
+    """Q as camera `index` moves over the placement set, the other `cameras` fixed.
+
+    On a boundary: Q against the arc-length fraction s (the thesis's Fig. 5.5; its kinks
+    are where an occlusion event appears or vanishes), corners dotted. Elsewhere: a heat
+    map of Q over the placement's candidate grid, the objects drawn on top. `result`'s
+    best cameras are marked (stars).
+
+    **Arguments:**
+    - `scene`, `placement`; `cameras` (k, 2): the fixed cameras (None: one camera).
+    - `index`: which camera moves; `objective`: q; `result`: an `optimize` result to mark.
+    - `resolution`: samples along the boundary, or per axis of the grid.
+
+    **Returns:** the Axes.
+    """
+    ax = _axes(ax)
+    objective = as_local_objective(objective)
+    fixed = np.zeros((1, 2)) if cameras is None else np.atleast_2d(np.asarray(cameras, float))
+    boundary = isinstance(placement, AbstractBoundary)
+    params = jnp.linspace(0, 1, resolution, endpoint=False)[:, None] if boundary else placement.candidates(resolution)
+    positions = np.asarray(placement.cameras(params))
+    sets = np.repeat(fixed[None], len(positions), 0)
+    sets[:, index] = positions
+    values = _values_of_sets(scene, objective, options, sets, 512)
+    values = np.where(np.isfinite(values), values, np.nan)  # -inf: undefined
+    marks = [] if result is None else np.asarray(result.cameras)
+    if boundary:
+        s = np.asarray(params[:, 0])
+        ax.plot(s, values, color=CAMERA_COLOURS[index % 10])
+        for corner in np.asarray(placement.arc_fraction(placement.vertices())):
+            ax.axvline(corner, color="0.7", linestyle=":", linewidth=0.8)
+        for camera in np.atleast_2d(marks):
+            s_best = float(placement.arc_fraction(camera[None])[0])
+            ax.plot(s_best, float(result.value), "*", color="black", markersize=12)
+        ax.set_xlabel("camera position s along the boundary (fraction of its length)")
+        ax.set_ylabel("Q")
+    else:
+        defined = np.isfinite(values)  # Q is undefined inside and too near the objects
+        x, y = positions[defined].T
+        image = ax.tricontourf(x, y, values[defined], levels=32, cmap="viridis")
+        plt.colorbar(image, ax=ax, label="Q")
+        for curve in _curve_points(scene, np.linspace(0, 1, 513)):
+            ax.plot(*curve.T, color="white", linewidth=1.5)
+        for camera in np.atleast_2d(marks):
+            ax.plot(*camera, "*", color="red", markersize=12, markeredgecolor="black")
+        ax.set_aspect("equal")
+    return ax
+
+
+def plot_optimization(result: OptimizeResult, scene: Scene | None = None, placement=None, *, ax=None, cmap="viridis"):
+    """Every start's path from start (circle) to end (triangle), per camera, coloured by
+    the start's final Q; the best placement starred. With `scene`/`placement`, those are
+    drawn beneath.
+
+    **Returns:** the Axes.
+    """
+    ax = _axes(ax)
+    if scene is not None:
+        for curve in _curve_points(scene, np.linspace(0, 1, 513)):
+            ax.plot(*curve.T, color=OBJECT_COLOUR, linewidth=1.5)
+    if placement is not None:
+        plot_placement(placement, ax)
+    paths = np.asarray(result.paths)  # (n, s, k, 2)
+    final = np.asarray(result.start_values)
+    finite = np.isfinite(final)
+    low, high = (final[finite].min(), final[finite].max()) if finite.any() else (0.0, 1.0)
+    norm = plt.Normalize(low, high if high > low else low + 1)
+    colours = plt.get_cmap(cmap)(norm(np.where(finite, final, low)))
+    for start in range(paths.shape[1]):
+        for camera in range(paths.shape[2]):
+            path = paths[:, start, camera]
+            ax.plot(*path.T, color=colours[start], linewidth=1, alpha=0.8)
+            ax.plot(*path[0], "o", color=colours[start], markersize=3)
+            ax.plot(*path[-1], "^", color=colours[start], markersize=5)
+    ax.plot(*np.asarray(result.cameras).T, "*", color="red", markersize=14, markeredgecolor="black")
+    plt.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="final Q of the start")
+    ax.set_aspect("equal")
+    return ax
