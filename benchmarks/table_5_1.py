@@ -56,16 +56,26 @@ def rows_for(k: int):
     corners, t = warm(ocp.optimize, SCENE, OBJECTIVE, PLACEMENT, k, starts=corner_starts(k))
     for j in range(4):
         rows.append(
-            (f"BFGS, 1 start near corner {j}", int(corners.num_steps[j]), None,
-             float(corners.start_values[j]))
+            (
+                f"BFGS, 1 start near corner {j}",
+                int(corners.num_steps[j]),
+                None,
+                float(corners.start_values[j]),
+            )
         )
-    rows.append(("BFGS, the 4 corner starts batched", corners.num_evaluations, t, float(corners.value)))
+    rows.append(
+        ("BFGS, the 4 corner starts batched", corners.num_evaluations, t, float(corners.value))
+    )
     slsqp, t = warm(ocp.slsqp, SCENE, OBJECTIVE, PLACEMENT, k, starts=corner_starts(k))
-    rows.append(("SLSQP (scipy), the 4 corner starts", slsqp.num_evaluations, t, float(slsqp.value)))
+    rows.append(
+        ("SLSQP (scipy), the 4 corner starts", slsqp.num_evaluations, t, float(slsqp.value))
+    )
     multi = {}
     for n in (16, 64):
         multi[n], t = warm(ocp.optimize, SCENE, OBJECTIVE, PLACEMENT, k, n_starts=n)
-        rows.append((f"BFGS multi-start, {n} starts", multi[n].num_evaluations, t, float(multi[n].value)))
+        rows.append(
+            (f"BFGS multi-start, {n} starts", multi[n].num_evaluations, t, float(multi[n].value))
+        )
     return rows, greedy, multi
 
 
@@ -83,7 +93,9 @@ def main():
         print(header)
         for method, evaluations, seconds, q in rows:
             time_cell = "-" if seconds is None else f"{seconds:.3f}"
-            print(f"{k:>2}  {method:38s} {evaluations:>11} {time_cell:>8} {q:12.6f} {q / best:8.6f}")
+            print(
+                f"{k:>2}  {method:38s} {evaluations:>11} {time_cell:>8} {q:12.6f} {q / best:8.6f}"
+            )
         print()
         curves[k] = (greedy, multi)
 
@@ -97,13 +109,16 @@ def main():
             hit = np.nonzero(history[:, 2] >= float(greedy.value) * (1 - MATCH))[0]
             if len(hit):
                 s, ev, _ = history[hit[0]]
-                print(f"      matches greedy's Q (to {MATCH:g}) after {s:.3f} s, {int(ev)} evaluations")
+                print(
+                    f"      matches greedy's Q (to {MATCH:g}) after {s:.3f} s, {int(ev)} evaluations"
+                )
             else:
                 print(f"      never matches greedy's Q (to {MATCH:g})")
         print(
             f"      greedy: Q {float(greedy.value):.6f} in {greedy.seconds:.3f} s, "
             f"{greedy.num_evaluations} evaluations"
         )
+
 
 if __name__ == "__main__":
     main()

@@ -27,8 +27,8 @@ from ._placement import FreePlacement as FreePlacement
 from ._placement import PolygonBoundary as PolygonBoundary
 from ._placement import RectangleBoundary as RectangleBoundary
 from ._placement import Region as Region
-from ._problem_file import load_problem as load_problem
 from ._problem_file import PlacementProblem as PlacementProblem
+from ._problem_file import load_problem as load_problem
 from ._problem_file import problem_to_json as problem_to_json
 from ._scene import Scene as Scene
 from ._visibility import VisibilityOptions as VisibilityOptions

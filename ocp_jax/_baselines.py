@@ -68,7 +68,9 @@ def _values_of_sets(scene, objective, options, camera_sets: np.ndarray, chunk: i
         part = camera_sets[begin : begin + chunk]
         pad = chunk - len(part)
         padded = np.concatenate([part, np.repeat(part[:1], pad, 0)]) if pad else part
-        out.append(np.asarray(_set_values(scene, objective, options, jnp.asarray(padded)))[: len(part)])
+        out.append(
+            np.asarray(_set_values(scene, objective, options, jnp.asarray(padded)))[: len(part)]
+        )
     return np.concatenate(out)
 
 
@@ -130,7 +132,9 @@ def greedy(
         chosen = sets[int(np.argmax(values))]
     seconds = time.perf_counter() - clock
     evaluations = n_cameras * len(candidates)
-    return _search_result(scene, objective, options, chosen, evaluations, seconds, candidates, stages)
+    return _search_result(
+        scene, objective, options, chosen, evaluations, seconds, candidates, stages
+    )
 
 
 def exhaustive(
@@ -205,7 +209,9 @@ def slsqp(
     arguments and result as `optimize`; `num_evaluations` counts SLSQP's calls of the
     value-and-gradient function."""
     if starts is None:
-        starts = placement.sample(key if key is not None else jax.random.key(0), n_cameras, n_starts)
+        starts = placement.sample(
+            key if key is not None else jax.random.key(0), n_cameras, n_starts
+        )
     starts = np.asarray(starts, float)
     problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
     shape = starts.shape[1:]
@@ -238,7 +244,11 @@ def slsqp(
     finals, status, steps = [], [], []
     for start in starts:
         out = scipy.optimize.minimize(
-            fun, start.ravel(), jac=True, method="SLSQP", constraints=constraints,
+            fun,
+            start.ravel(),
+            jac=True,
+            method="SLSQP",
+            constraints=constraints,
             options={"maxiter": max_steps},
         )
         finals.append(out.x.reshape(shape))

@@ -1,9 +1,9 @@
 """The `ocp-jax` command line.
 
-    ocp-jax demo                              optimise 1 and 2 cameras on the banana
-    ocp-jax optimize PROBLEM.json --cameras K [--starts N] [--max-steps M] [--greedy]
-                                              [--picture OUT.png]
-    ocp-jax example                           print the banana problem as JSON
+ocp-jax demo                              optimise 1 and 2 cameras on the banana
+ocp-jax optimize PROBLEM.json --cameras K [--starts N] [--max-steps M] [--greedy]
+                                          [--picture OUT.png]
+ocp-jax example                           print the banana problem as JSON
 """
 
 import argparse
@@ -34,7 +34,9 @@ def _cameras(cameras) -> str:
 
 def _run(scene, placement, objective, k, starts, max_steps, compare_greedy, progress):
     """Optimise k cameras (and greedy beside it); print what each found."""
-    clock = _stage(f"\n{k} camera(s): multi-start BFGS from {starts} starts (compiles on first use)")
+    clock = _stage(
+        f"\n{k} camera(s): multi-start BFGS from {starts} starts (compiles on first use)"
+    )
     result = optimize(
         scene, objective, placement, k, n_starts=starts, max_steps=max_steps, progress=progress
     )
@@ -85,10 +87,20 @@ def optimize_file(args) -> None:
         problem = load_problem(args.problem)
     except (OSError, ValueError) as error:
         sys.exit(f"ocp-jax: {error}")
-    print(f"{args.problem}: {len(problem.scene)} curve(s), {type(problem.placement).__name__}, "
-          f"{type(problem.objective).__name__}")
-    result = _run(problem.scene, problem.placement, problem.objective, args.cameras,
-                  args.starts, args.max_steps, args.greedy, True)
+    print(
+        f"{args.problem}: {len(problem.scene)} curve(s), {type(problem.placement).__name__}, "
+        f"{type(problem.objective).__name__}"
+    )
+    result = _run(
+        problem.scene,
+        problem.placement,
+        problem.objective,
+        args.cameras,
+        args.starts,
+        args.max_steps,
+        args.greedy,
+        True,
+    )
     if args.picture:
         _picture(problem.scene, problem.placement, result, pathlib.Path(args.picture))
 

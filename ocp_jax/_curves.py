@@ -113,9 +113,10 @@ class AbstractCurve(eqx.Module):
 
 
 def _check_regular(curve: AbstractCurve, name: str) -> None:
-    """Concrete check that x'(t) never vanishes (a regular parametrisation)."""
-    t = jnp.linspace(0.0, 1.0, 257)
-    x, dx, _ = curve.derivatives(t)
+    """Concrete check that x'(t) never vanishes (a regular parametrisation). Evaluated
+    eagerly even while a function that builds the curve from constants is traced."""
+    with jax.ensure_compile_time_eval():
+        x, dx, _ = curve.derivatives(jnp.linspace(0.0, 1.0, 257))
     speed = np.linalg.norm(np.asarray(dx), axis=-1)
     size = np.ptp(np.asarray(x), axis=0).max()
     if not np.all(speed > 1e-9 * max(size, 1e-300)):

@@ -56,7 +56,7 @@ class PlacementProblem(NamedTuple):
 
 def _build(entry: Any, kinds: dict, where: str):
     if not isinstance(entry, dict) or "type" not in entry:
-        raise ValueError(f"{where} must be an object with a \"type\" ({', '.join(kinds)}).")
+        raise ValueError(f'{where} must be an object with a "type" ({", ".join(kinds)}).')
     kind = entry["type"]
     if kind not in kinds:
         raise ValueError(f"{where}: unknown type {kind!r}; expected one of {', '.join(kinds)}.")
@@ -79,16 +79,18 @@ def _build(entry: Any, kinds: dict, where: str):
 def problem_from_dict(data: Any) -> PlacementProblem:
     """A `PlacementProblem` from the JSON form's dictionary."""
     if not isinstance(data, dict):
-        raise ValueError("A problem file must hold a JSON object with \"curves\" and \"placement\".")
+        raise ValueError('A problem file must hold a JSON object with "curves" and "placement".')
     unknown = sorted(set(data) - {"curves", "placement", "objective"})
     if unknown:
-        raise ValueError(f"Unknown top-level keys {unknown}; expected curves, placement, objective.")
+        raise ValueError(
+            f"Unknown top-level keys {unknown}; expected curves, placement, objective."
+        )
     curves = data.get("curves")
     if not isinstance(curves, list) or not curves:
-        raise ValueError("\"curves\" must be a non-empty list of curve objects.")
+        raise ValueError('"curves" must be a non-empty list of curve objects.')
     scene = Scene([_build(c, CURVES, f"curves[{i}]") for i, c in enumerate(curves)])
     if "placement" not in data:
-        raise ValueError("The problem needs a \"placement\" (where cameras may go).")
+        raise ValueError('The problem needs a "placement" (where cameras may go).')
     placement = _build(data["placement"], PLACEMENTS, "placement")
     name = data.get("objective", "foreshortened")
     if name not in OBJECTIVES:
@@ -130,11 +132,12 @@ def problem_to_json(scene: Scene, placement: AbstractPlacement, objective=None) 
     objective = objective if objective is not None else Foreshortened()
     names = {cls: name for name, cls in OBJECTIVES.items()}
     if type(objective) not in names:
-        raise TypeError(f"{type(objective).__name__} has no JSON form (only {', '.join(OBJECTIVES)}).")
+        raise TypeError(
+            f"{type(objective).__name__} has no JSON form (only {', '.join(OBJECTIVES)})."
+        )
     data = {
         "curves": [_entry(c, CURVES) for c in scene.curves],
         "placement": _entry(placement, PLACEMENTS),
         "objective": names[type(objective)],
     }
     return json.dumps(data, indent=1)
-

@@ -129,7 +129,9 @@ def _draw_events(ax, scene, camera, seen, c: int, colour):
         valid = np.asarray(roots.valid[c])
         points = np.asarray(scene.derivatives(jnp.asarray(t))[0])[valid]
         for p in points:
-            ax.plot([camera[0], p[0]], [camera[1], p[1]], style, color=colour, linewidth=0.7, zorder=1)
+            ax.plot(
+                [camera[0], p[0]], [camera[1], p[1]], style, color=colour, linewidth=0.7, zorder=1
+            )
         ax.plot(*points.T, marker, color=colour, markersize=5, fillstyle="none", zorder=6)
 
 
@@ -149,8 +151,8 @@ def plot_landscape(
 
     On a boundary: Q against the arc-length fraction s (the thesis's Fig. 5.5; its kinks
     are where an occlusion event appears or vanishes), corners dotted. Elsewhere: a heat
-    map of Q over the placement's candidate grid, the objects drawn on top. `result`'s
-    best cameras are marked (stars).
+    map of Q over the placement's candidate grid, the objects drawn on top. The optimised
+    position of camera `index` in `result` is starred.
 
     **Arguments:**
     - `scene`, `placement`; `cameras` (k, 2): the fixed cameras (None: one camera).
@@ -163,20 +165,23 @@ def plot_landscape(
     objective = as_local_objective(objective)
     fixed = np.zeros((1, 2)) if cameras is None else np.atleast_2d(np.asarray(cameras, float))
     boundary = isinstance(placement, AbstractBoundary)
-    params = jnp.linspace(0, 1, resolution, endpoint=False)[:, None] if boundary else placement.candidates(resolution)
+    params = (
+        jnp.linspace(0, 1, resolution, endpoint=False)[:, None]
+        if boundary
+        else placement.candidates(resolution)
+    )
     positions = np.asarray(placement.cameras(params))
     sets = np.repeat(fixed[None], len(positions), 0)
     sets[:, index] = positions
     values = _values_of_sets(scene, objective, options, sets, 512)
     values = np.where(np.isfinite(values), values, np.nan)  # -inf: undefined
-    marks = [] if result is None else np.asarray(result.cameras)
     if boundary:
         s = np.asarray(params[:, 0])
         ax.plot(s, values, color=CAMERA_COLOURS[index % 10])
         for corner in np.asarray(placement.arc_fraction(placement.vertices())):
             ax.axvline(corner, color="0.7", linestyle=":", linewidth=0.8)
-        for camera in np.atleast_2d(marks):
-            s_best = float(placement.arc_fraction(camera[None])[0])
+        if result is not None:
+            s_best = float(placement.arc_fraction(result.cameras[index][None])[0])
             ax.plot(s_best, float(result.value), "*", color="black", markersize=12)
         ax.set_xlabel("camera position s along the boundary (fraction of its length)")
         ax.set_ylabel("Q")
@@ -187,13 +192,16 @@ def plot_landscape(
         plt.colorbar(image, ax=ax, label="Q")
         for curve in _curve_points(scene, np.linspace(0, 1, 513)):
             ax.plot(*curve.T, color="white", linewidth=1.5)
-        for camera in np.atleast_2d(marks):
-            ax.plot(*camera, "*", color="red", markersize=12, markeredgecolor="black")
+        if result is not None:
+            best = np.asarray(result.cameras[index])
+            ax.plot(*best, "*", color="red", markersize=12, markeredgecolor="black")
         ax.set_aspect("equal")
     return ax
 
 
-def plot_optimization(result: OptimizeResult, scene: Scene | None = None, placement=None, *, ax=None, cmap="viridis"):
+def plot_optimization(
+    result: OptimizeResult, scene: Scene | None = None, placement=None, *, ax=None, cmap="viridis"
+):
     """Every start's path from start (circle) to end (triangle), per camera, coloured by
     the start's final Q; the best placement starred. With `scene`/`placement`, those are
     drawn beneath.

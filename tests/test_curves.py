@@ -322,3 +322,15 @@ def test_invalid_curves_raise_value_error(make, match):
 def test_scene_rejects_non_curves():
     with pytest.raises(TypeError, match="must be ocp_jax curves"):
         ocp.Scene([ocp.Circle(jnp.zeros(2), 1.0), np.zeros((4, 2))])
+
+
+def test_curves_from_constants_can_be_built_inside_jit():
+    """The concrete checks run eagerly while a traced function builds a curve from
+    constant control points (they used to fail on traced intermediate values)."""
+    points = jnp.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+
+    @jax.jit
+    def first_point(scale):
+        return ocp.BSplineCurve(points)(jnp.zeros(1))[0] * scale
+
+    np.testing.assert_allclose(first_point(2.0), 2 * np.asarray(ocp.BSplineCurve(points)(jnp.zeros(1))[0]))

@@ -119,8 +119,12 @@ def test_vmapped_starts_equal_single_solves():
     batch = square_result()
     for index in (0, 2):
         single = ocp.optimize(
-            TWO_CIRCLES, ocp.Foreshortened(), SQUARE, 2,
-            starts=square_starts()[index : index + 1], max_steps=60,
+            TWO_CIRCLES,
+            ocp.Foreshortened(),
+            SQUARE,
+            2,
+            starts=square_starts()[index : index + 1],
+            max_steps=60,
         )
         np.testing.assert_allclose(single.cameras, batch.start_cameras[index], atol=1e-9)
         assert int(single.num_steps[0]) == int(batch.num_steps[index])

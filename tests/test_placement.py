@@ -13,18 +13,35 @@ PERIMETER = 360.0
 
 def test_rectangle_corners_and_sides():
     s = np.array([0.0, 100, 180, 280, 360, 50, 140, 230, 320]) / PERIMETER
-    want = [[-50, -20], [50, -20], [50, 60], [-50, 60], [-50, -20],
-            [0, -20], [50, 20], [0, 60], [-50, 20]]
+    want = [
+        [-50, -20],
+        [50, -20],
+        [50, 60],
+        [-50, 60],
+        [-50, -20],
+        [0, -20],
+        [50, 20],
+        [0, 60],
+        [-50, 20],
+    ]
     np.testing.assert_allclose(RECT.cameras(jnp.asarray(s)[:, None]), want, atol=1e-12)
     # periodic in s
-    np.testing.assert_allclose(RECT.cameras(jnp.array([[0.3], [1.3], [-0.7]])), RECT.cameras(jnp.array([[0.3]] * 3)), atol=1e-12)
+    np.testing.assert_allclose(
+        RECT.cameras(jnp.array([[0.3], [1.3], [-0.7]])),
+        RECT.cameras(jnp.array([[0.3]] * 3)),
+        atol=1e-12,
+    )
 
 
 def test_rectangle_parametrisation_is_by_arc_length():
     """|dC/ds| = perimeter away from the corners, along the side's direction."""
-    jac = jax.vmap(jax.jacfwd(lambda s: RECT.cameras(s[None, None])[0]))(jnp.array([0.1, 0.4, 0.6, 0.9]))
+    jac = jax.vmap(jax.jacfwd(lambda s: RECT.cameras(s[None, None])[0]))(
+        jnp.array([0.1, 0.4, 0.6, 0.9])
+    )
     np.testing.assert_allclose(np.linalg.norm(jac, axis=-1), PERIMETER, rtol=1e-12)
-    np.testing.assert_allclose(jac, PERIMETER * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]]), atol=1e-9)
+    np.testing.assert_allclose(
+        jac, PERIMETER * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]]), atol=1e-9
+    )
 
 
 def test_rectangle_violation():
@@ -50,8 +67,10 @@ def test_rectangle_sample_and_candidates():
 
 @pytest.mark.parametrize(
     "args,match",
-    [(((0.0, 0.0), -1.0, 2.0), "width and height must be positive"),
-     (((0.0, 0.0, 1.0), 1.0, 2.0), r"center must have shape \(2,\)")],
+    [
+        (((0.0, 0.0), -1.0, 2.0), "width and height must be positive"),
+        (((0.0, 0.0, 1.0), 1.0, 2.0), r"center must have shape \(2,\)"),
+    ],
 )
 def test_rectangle_rejects_bad_input(args, match):
     with pytest.raises(ValueError, match=match):
@@ -81,9 +100,11 @@ def test_rectangle_is_the_four_cornered_polygon():
 
 @pytest.mark.parametrize(
     "corners,match",
-    [([[0.0, 0.0], [1.0, 0.0]], r"shape \(n, 2\) with n >= 3"),
-     ([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]], "zero-length edge"),
-     ([[0.0, 0.0], [1.0, 0.0], [0.0, np.nan]], "NaN or inf")],
+    [
+        ([[0.0, 0.0], [1.0, 0.0]], r"shape \(n, 2\) with n >= 3"),
+        ([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [0.0, 1.0]], "zero-length edge"),
+        ([[0.0, 0.0], [1.0, 0.0], [0.0, np.nan]], "NaN or inf"),
+    ],
 )
 def test_polygon_rejects_bad_corners(corners, match):
     with pytest.raises(ValueError, match=match):
@@ -101,7 +122,9 @@ def test_region_map_sampling_and_candidates():
     starts = region.cameras(region.sample(jax.random.key(1), 3, 50).reshape(-1, 2))
     assert np.all(np.asarray(starts).sum(-1) <= 4.0)  # inside the triangle (16 tries each)
     grid = np.asarray(region.cameras(region.candidates(5)))
-    assert len(grid) == 10 and np.all(grid.sum(-1) < 4.0 + 1e-12)  # the lower-left half, diagonal off
+    assert len(grid) == 10 and np.all(
+        grid.sum(-1) < 4.0 + 1e-12
+    )  # the lower-left half, diagonal off
 
 
 def test_region_constraints_measure_the_clearance_and_the_polygon():
@@ -137,7 +160,12 @@ def test_free_placement():
     free = ocp.FreePlacement(jnp.array([-1.0, 2.0]), jnp.array([1.0, 3.0]))
     starts = np.asarray(free.sample(jax.random.key(0), 2, 10))
     assert starts.shape == (10, 2, 2)
-    assert np.all((starts[..., 0] >= -1) & (starts[..., 0] <= 1) & (starts[..., 1] >= 2) & (starts[..., 1] <= 3))
+    assert np.all(
+        (starts[..., 0] >= -1)
+        & (starts[..., 0] <= 1)
+        & (starts[..., 1] >= 2)
+        & (starts[..., 1] <= 3)
+    )
     np.testing.assert_array_equal(free.cameras(jnp.asarray(starts[0])), starts[0])
     assert free.candidates(3).shape == (9, 2)
     with pytest.raises(ValueError, match="upper > lower"):

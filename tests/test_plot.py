@@ -92,7 +92,9 @@ def test_landscape_along_a_boundary(tmp_path):
 
 
 def test_landscape_heat_map_and_optimization_paths(tmp_path):
-    ax = plot.plot_landscape(CIRCLE, BOX, objective=ocp.VisibleLength(), result=box_result(), resolution=24)
+    ax = plot.plot_landscape(
+        CIRCLE, BOX, objective=ocp.VisibleLength(), result=box_result(), resolution=24
+    )
     ax.figure.savefig(tmp_path / "heat.png")
     assert not_blank(plt.imread(tmp_path / "heat.png")[..., :3])
     ax = plot.plot_optimization(square_result(), TWO_CIRCLES, SQUARE)
@@ -101,3 +103,13 @@ def test_landscape_heat_map_and_optimization_paths(tmp_path):
     np.testing.assert_allclose(paths[-1], square_result().start_cameras, atol=1e-12)
     ax.figure.savefig(tmp_path / "paths.png")
     assert not_blank(plt.imread(tmp_path / "paths.png")[..., :3])
+
+
+def test_landscape_stars_the_moving_cameras_optimum():
+    result = square_result()
+    ax = plot.plot_landscape(TWO_CIRCLES, SQUARE, result.cameras, index=0, result=result)
+    stars = [line for line in ax.lines if line.get_marker() == "*"]
+    assert len(stars) == 1
+    s, q = (float(v[0]) for v in stars[0].get_data())
+    assert s == pytest.approx(float(SQUARE.arc_fraction(result.cameras[:1])[0]))
+    assert q == pytest.approx(float(result.value))

@@ -41,7 +41,9 @@ def test_round_trip_of_every_kind(tmp_path):
         ocp.RectangleBoundary(jnp.array([0.0, 20.0]), 100.0, 80.0),
         ocp.PolygonBoundary(jnp.array([[-9.0, -9], [9, -9], [0, 9]])),
         ocp.Region(jnp.array([-9.0, -9]), jnp.array([9.0, 9]), clearance=0.5),
-        ocp.Region(jnp.array([-9.0, -9]), jnp.array([9.0, 9]), jnp.array([[-9.0, -9], [9, -9], [0, 9]])),
+        ocp.Region(
+            jnp.array([-9.0, -9]), jnp.array([9.0, 9]), jnp.array([[-9.0, -9], [9, -9], [0, 9]])
+        ),
         ocp.FreePlacement(jnp.array([-9.0, -9]), jnp.array([9.0, 9])),
     ]
     for placement, objective in zip(placements, [ocp.VisibleLength(), ocp.Foreshortened()] * 3):
@@ -67,15 +69,32 @@ def jax_leaves(tree):
         ([1, 2], "must hold a JSON object"),
         ({"curves": [], "placement": {}}, "non-empty list of curve objects"),
         ({"curves": [{"type": "spline"}], "placement": {}}, r"curves\[0\]: unknown type 'spline'"),
-        ({"curves": [{"type": "circle", "center": [0, 0]}], "placement": {}},
-         r"curves\[0\] \(circle\): missing \['radius'\]"),
-        ({"curves": [{"type": "circle", "center": [0, 0], "radius": 1, "colour": 2}], "placement": {}},
-         r"unknown \['colour'\]"),
-        ({"curves": [{"type": "bezier", "control_points": [[0, 0], [1, 0], [1, 1], [0, 1]]}],
-          "placement": {}}, r"curves\[0\] \(bezier\): BezierCurve must be closed"),
-        ({"curves": PROBLEM["curves"]}, "needs a \"placement\""),
-        ({**PROBLEM, "placement": {"type": "rectangle", "center": [0, 0], "width": -1, "height": 1}},
-         r"placement \(rectangle\): .*width and height must be positive"),
+        (
+            {"curves": [{"type": "circle", "center": [0, 0]}], "placement": {}},
+            r"curves\[0\] \(circle\): missing \['radius'\]",
+        ),
+        (
+            {
+                "curves": [{"type": "circle", "center": [0, 0], "radius": 1, "colour": 2}],
+                "placement": {},
+            },
+            r"unknown \['colour'\]",
+        ),
+        (
+            {
+                "curves": [{"type": "bezier", "control_points": [[0, 0], [1, 0], [1, 1], [0, 1]]}],
+                "placement": {},
+            },
+            r"curves\[0\] \(bezier\): BezierCurve must be closed",
+        ),
+        ({"curves": PROBLEM["curves"]}, 'needs a "placement"'),
+        (
+            {
+                **PROBLEM,
+                "placement": {"type": "rectangle", "center": [0, 0], "width": -1, "height": 1},
+            },
+            r"placement \(rectangle\): .*width and height must be positive",
+        ),
         ({**PROBLEM, "objective": "area"}, "objective: unknown 'area'"),
         ({**PROBLEM, "cameras": 2}, r"Unknown top-level keys \['cameras'\]"),
     ],
