@@ -257,7 +257,7 @@ def slsqp(
     seconds = time.perf_counter() - clock
     tolerance = tolerance if tolerance is not None else (1e-6 if constraints else 1e-8)
     finals = jnp.asarray(np.stack(finals))
-    paths = [jax.vmap(placement.cameras)(jnp.asarray(p)) for p in (starts, finals)]
     return _best(
-        problem, finals, tuple(status), jnp.asarray(steps), calls, seconds, [], paths, tolerance
+        problem, finals, tuple(status), jnp.asarray(steps), calls, seconds, [],
+        [jnp.asarray(starts), finals], tolerance,
     )

@@ -135,11 +135,6 @@ def _advance(solver, problem, carry, multipliers, penalty, n_steps, max_steps):
 
 
 @eqx.filter_jit
-def _cameras_of(placement, params):
-    return jax.vmap(placement.cameras)(params)
-
-
-@eqx.filter_jit
 def _values(problem, params):
     return problem.values(params)
 
@@ -194,7 +189,8 @@ class OptimizeResult(eqx.Module):
     - `violation`: the best placement's constraint violation;
     - `seconds`: wall time; `history` (n, 3): seconds, evaluations and best Q so far,
       after each chunk of steps (for constrained placements, the best merit -L L);
-    - `paths` (n + 1, s, k, 2): every start's cameras at the start and after each chunk.
+    - `paths` (n + 1, s, k, p): every start's parameters at the start and after each
+      chunk (`placement.cameras` maps them to positions; `plot.plot_optimization`).
     """
 
     cameras: Float[Array, "k 2"]
@@ -207,7 +203,7 @@ class OptimizeResult(eqx.Module):
     violation: float
     seconds: float
     history: Float[Array, "n 3"]
-    paths: Float[Array, "n s k 2"]
+    paths: Float[Array, "n s k p"]
 
 
 def _best(problem, params, status, num_steps, evaluations, seconds, history, paths, tolerance):
@@ -308,7 +304,7 @@ def optimize(
 
     clock, evaluations, history = time.perf_counter(), 0, []
     total_steps = jnp.zeros(params.shape[:1], int)
-    paths = [_cameras_of(placement, params)[:count]]
+    paths = [params[:count]]
     last_report, last_violation = clock, None
     for outer in range(outer_iterations if constrained else 1):
         state = _init(solver, problem, params, multipliers, penalty)
@@ -321,7 +317,7 @@ def optimize(
             best = float(jnp.nanmax(jnp.where(valid_start, -carry[1].f_info.f, -jnp.inf)))
             now = time.perf_counter()
             history.append((now - clock, evaluations, best * float(problem.scale)))
-            paths.append(_cameras_of(placement, carry[0])[:count])
+            paths.append(carry[0][:count])
             if progress and now - last_report > 1.0:
                 running = int(jnp.sum(~carry[2]))
                 print(

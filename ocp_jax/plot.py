@@ -200,11 +200,18 @@ def plot_landscape(
 
 
 def plot_optimization(
-    result: OptimizeResult, scene: Scene | None = None, placement=None, *, ax=None, cmap="viridis"
+    result: OptimizeResult,
+    scene: Scene | None,
+    placement: AbstractPlacement,
+    *,
+    ax=None,
+    cmap="viridis",
+    substeps: int = 16,
 ):
     """Every start's path from start (circle) to end (triangle), per camera, coloured by
-    the start's final Q; the best placement starred. With `scene`/`placement`, those are
-    drawn beneath.
+    the start's final Q; the best placement starred; the scene (unless None) and the
+    placement beneath. The recorded parameters are joined in parameter space
+    (`substeps` points between records), so a path on a boundary follows its walls.
 
     **Returns:** the Axes.
     """
@@ -212,9 +219,12 @@ def plot_optimization(
     if scene is not None:
         for curve in _curve_points(scene, np.linspace(0, 1, 513)):
             ax.plot(*curve.T, color=OBJECT_COLOUR, linewidth=1.5)
-    if placement is not None:
-        plot_placement(placement, ax)
-    paths = np.asarray(result.paths)  # (n, s, k, 2)
+    plot_placement(placement, ax)
+    params = np.asarray(result.paths)  # (n, s, k, p)
+    fraction = np.linspace(0.0, 1.0, substeps, endpoint=False)[:, None, None, None, None]
+    between = params[:-1][None] + fraction * np.diff(params, axis=0)[None]  # (sub, n-1, s, k, p)
+    fine = np.concatenate([np.moveaxis(between, 0, 1).reshape(-1, *params.shape[1:]), params[-1:]])
+    paths = np.asarray(placement.cameras(jnp.asarray(fine)))  # (points, s, k, 2)
     final = np.asarray(result.start_values)
     finite = np.isfinite(final)
     low, high = (final[finite].min(), final[finite].max()) if finite.any() else (0.0, 1.0)

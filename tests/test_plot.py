@@ -98,9 +98,15 @@ def test_landscape_heat_map_and_optimization_paths(tmp_path):
     ax.figure.savefig(tmp_path / "heat.png")
     assert not_blank(plt.imread(tmp_path / "heat.png")[..., :3])
     ax = plot.plot_optimization(square_result(), TWO_CIRCLES, SQUARE)
-    paths = np.asarray(square_result().paths)
-    assert paths.shape[1:] == (4, 2, 2)
-    np.testing.assert_allclose(paths[-1], square_result().start_cameras, atol=1e-12)
+    paths = square_result().paths
+    assert paths.shape[1:] == (4, 2, 1)
+    np.testing.assert_allclose(SQUARE.cameras(paths[-1]), square_result().start_cameras, atol=1e-12)
+    # drawn along the walls: every point of every path lies on the rectangle
+    points_per_path = 16 * (len(paths) - 1) + 1  # 16 substeps between records
+    lines = [line.get_xydata() for line in ax.lines if len(line.get_xydata()) == points_per_path]
+    assert len(lines) == 4 * 2  # one per start and camera
+    drawn = np.concatenate(lines)
+    assert len(drawn) > 100 and float(SQUARE.violation(drawn)) < 1e-9
     ax.figure.savefig(tmp_path / "paths.png")
     assert not_blank(plt.imread(tmp_path / "paths.png")[..., :3])
 
