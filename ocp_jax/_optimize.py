@@ -185,7 +185,8 @@ class OptimizeResult(eqx.Module):
       Q (-inf where it ended inadmissible); `start_status`: "converged", "max_steps",
       "invalid start" or the solver's failure;
     - `num_steps` (s,): steps per start; `num_evaluations`: value-and-gradient
-      evaluations over all starts;
+      evaluations over all starts (one per step; not counted: one value evaluation per
+      start that screens out starts where Q is undefined);
     - `violation`: the best placement's constraint violation;
     - `seconds`: wall time; `history` (n, 3): seconds, evaluations and best Q so far,
       after each chunk of steps (for constrained placements, the best merit -L L);
@@ -278,8 +279,9 @@ def optimize(
             "optimize needs a placement, e.g. ocp.RectangleBoundary(center, width, height); "
             f"got {type(placement).__name__}."
         )
-    if not isinstance(n_cameras, int) or n_cameras < 1:
-        raise ValueError(f"n_cameras must be a positive int, got {n_cameras!r}.")
+    for name, value in (("n_cameras", n_cameras), ("n_starts", n_starts), ("max_steps", max_steps)):
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive int, got {value!r}.")
     constrained = placement.has_constraints()
     tolerance = tolerance if tolerance is not None else (1e-6 if constrained else 1e-8)
     solver = solver if solver is not None else optx.BFGS(rtol=1e-9, atol=1e-9)
@@ -327,7 +329,7 @@ def optimize(
                     flush=True,
                 )
                 last_report = now
-        params, _, done, steps, stopped, result = carry
+        params, _, _, steps, stopped, result = carry
         total_steps = total_steps + steps
         if not constrained:
             break

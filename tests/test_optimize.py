@@ -185,6 +185,8 @@ def test_bad_input():
         ocp.optimize(CIRCLE, ocp.VisibleLength(), None, 1)
     with pytest.raises(ValueError, match="n_cameras must be a positive int"):
         ocp.optimize(CIRCLE, ocp.VisibleLength(), SQUARE, 0)
+    with pytest.raises(ValueError, match="n_starts must be a positive int"):
+        ocp.optimize(CIRCLE, ocp.VisibleLength(), SQUARE, 1, n_starts=0)
     with pytest.raises(ValueError, match=r"starts must have shape \(n_starts, n_cameras=2, p\)"):
         ocp.optimize(CIRCLE, ocp.VisibleLength(), SQUARE, 2, starts=jnp.zeros((3, 1, 1)))
     with pytest.raises(ValueError, match="exceed max_evaluations"):
