@@ -188,8 +188,10 @@ class OptimizeResult(eqx.Module):
       evaluations over all starts (one per step; not counted: one value evaluation per
       start that screens out starts where Q is undefined);
     - `violation`: the best placement's constraint violation;
-    - `seconds`: wall time; `history` (n, 3): seconds, evaluations and best Q so far,
-      after each chunk of steps (for constrained placements, the best merit -L L);
+    - `seconds`: wall time (on the first call of a problem shape it includes the
+      compilation, which dominates); `history` (n, 3): seconds, evaluations and best Q
+      so far, after each chunk of steps (for constrained placements: -L times the best
+      augmented-Lagrangian merit);
     - `paths` (n + 1, s, k, p): every start's parameters at the start and after each
       chunk (`placement.cameras` maps them to positions; `plot.plot_optimization`).
     """
