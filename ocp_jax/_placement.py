@@ -392,42 +392,60 @@ class Region(AbstractPlacement):
 
 
 class EqualityConstraint(AbstractPlacement):
-    """Cameras on the set g(C) = 0 of a user's function (the thesis's Eq. 3.16), one
-    camera at a time: `g(camera (2,)) -> (r,)` residuals, a JAX function.
+    """Cameras on the set g(C) = 0 of a user's JAX function (the thesis's Eq. 3.16).
 
-    The parameters are the positions; the optimiser enforces g = 0 by an augmented
-    Lagrangian. Starting points and candidates are points of the box projected onto the
-    set by Gauss-Newton steps (C <- C - J^+ g); those that do not reach |g| <= 1e-10 are
-    dropped from the candidates (starting points keep them: the optimiser fixes them).
+    `per_camera=True` (default): `g(camera (2,)) -> (r,)` constrains each camera alone;
+    `per_camera=False`: `g(cameras (k, 2)) -> (r,)` may couple them (a distance between
+    cameras, a common line). The parameters are the positions; the optimiser enforces
+    g = 0 by an augmented Lagrangian. Starting points are points of the box projected onto
+    the set by Gauss-Newton steps (C <- C - J^+ g; a coupled g projects each start's set
+    jointly). Candidates (for the discrete searches) exist only for a per-camera g: the
+    projected points of a grid that reach |g| <= 1e-10.
 
     **Arguments:**
     - `g`: the constraint function (residuals in units of length keep it well scaled).
     - `lower`, `upper`: a box around the part of the set of interest, shape (2,) each.
+    - `per_camera`: whether g takes one camera or the whole set.
     """
 
     g: Callable[[Array], Array] = eqx.field(static=True)
     lower: Float[Array, "2"]
     upper: Float[Array, "2"]
+    per_camera: bool = eqx.field(static=True)
 
-    def __init__(self, g: Callable, lower: Float[ArrayLike, "2"], upper: Float[ArrayLike, "2"]):
+    def __init__(
+        self,
+        g: Callable,
+        lower: Float[ArrayLike, "2"],
+        upper: Float[ArrayLike, "2"],
+        per_camera: bool = True,
+    ):
         if not callable(g):
             raise TypeError("EqualityConstraint needs a callable g(camera) -> residuals.")
         self.g = g
         self.lower, self.upper = _check_box(lower, upper, "EqualityConstraint")
+        self.per_camera = bool(per_camera)
 
-    def _residual(self, camera):
-        return jnp.atleast_1d(self.g(camera))
+    def _residual(self, cameras: Array) -> Array:
+        """g of a camera set (k, 2), flattened."""
+        if self.per_camera:
+            return jax.vmap(lambda c: jnp.atleast_1d(self.g(c)))(cameras).ravel()
+        return jnp.atleast_1d(self.g(cameras)).ravel()
 
-    def _project(self, points: Array, steps: int = 30) -> Array:
-        def newton(point):
+    def _project(self, sets: Array, steps: int = 30) -> Array:
+        """Gauss-Newton projection of camera sets (..., k, 2) onto g = 0 (per camera,
+        or per set when g couples the cameras)."""
+        shape = sets.shape
+        sets = sets.reshape(-1, 1, 2) if self.per_camera else sets.reshape(-1, *shape[-2:])
+
+        def newton(cameras):
             def body(_, c):
-                r = self._residual(c)
-                jac = jnp.atleast_2d(jax.jacfwd(self._residual)(c))
-                return c - jnp.linalg.pinv(jac) @ r
+                jac = jax.jacfwd(self._residual)(c).reshape(-1, c.size)
+                return c - (jnp.linalg.pinv(jac) @ self._residual(c)).reshape(c.shape)
 
-            return jax.lax.fori_loop(0, steps, body, point)
+            return jax.lax.fori_loop(0, steps, body, cameras)
 
-        return jax.vmap(newton)(points.reshape(-1, 2)).reshape(points.shape)
+        return jax.vmap(newton)(sets).reshape(shape)
 
     def cameras(self, params):
         return params
@@ -438,10 +456,15 @@ class EqualityConstraint(AbstractPlacement):
     def candidates(self, resolution):
         """Projections of a `resolution` x `resolution` grid of the box, duplicates (to
         1e-9 of the box) removed."""
+        if not self.per_camera:
+            raise ValueError(
+                "EqualityConstraint candidates need a per-camera g (per_camera=True): a g "
+                "that couples the cameras has no single-camera grid for greedy/exhaustive."
+            )
         points = np.asarray(self._project(_box_grid(self.lower, self.upper, resolution)))
-        residual = np.abs(np.asarray(jax.vmap(self._residual)(jnp.asarray(points)))).max(1)
+        residual = np.abs(np.asarray(jax.vmap(self._residual)(jnp.asarray(points)[:, None])))
         size = float(jnp.max(self.upper - self.lower))
-        kept = points[residual <= 1e-10 * max(size, 1.0)]
+        kept = points[residual.max(1) <= 1e-10 * max(size, 1.0)]
         _, first = np.unique(np.round(kept / (1e-9 * size)), axis=0, return_index=True)
         return jnp.asarray(kept[np.sort(first)])
 
@@ -449,6 +472,12 @@ class EqualityConstraint(AbstractPlacement):
         return True
 
     def constraints(self, cameras, scene):
-        return Constraints(
-            jax.vmap(self._residual)(cameras).ravel(), jnp.zeros((0,), cameras.dtype)
-        )
+        return Constraints(self._residual(cameras), jnp.zeros((0,), cameras.dtype))
+
+    def violations(self, cameras, scene=None):
+        """Per camera |g| (per-camera g); a coupled g's largest |g| for every camera."""
+        if self.per_camera:
+            return super().violations(cameras, scene)
+        cameras = jnp.atleast_2d(jnp.asarray(cameras, float))
+        worst = 0.0 if scene is None else jnp.max(jnp.abs(self._residual(cameras)))
+        return jnp.full(cameras.shape[:1], worst, cameras.dtype)

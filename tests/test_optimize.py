@@ -212,3 +212,20 @@ def test_starts_sharded_over_two_devices(tmp_path):
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     subprocess.run([sys.executable, "-c", SHARDED.format(out=out)], check=True, env=env)
     np.testing.assert_allclose(np.load(out), square_result().start_cameras[:3], atol=1e-9)
+
+
+def test_coupled_equality_constraint_known_optimum():
+    """Two cameras on the ring |C| = 6, held opposite each other by a coupled g: by
+    symmetry they look at the ellipse broadside from both sides, (0, 6) and (0, -6)."""
+
+    def g(c):
+        return jnp.concatenate([jnp.linalg.norm(c, axis=1) - RING_RADIUS, c[0] + c[1]])
+
+    pair = ocp.EqualityConstraint(
+        g, jnp.array([-7.0, -7.0]), jnp.array([7.0, 7.0]), per_camera=False
+    )
+    result = ocp.optimize(ELLIPSE, ocp.Foreshortened(), pair, 2, n_starts=4, max_steps=60)
+    np.testing.assert_allclose(np.abs(np.asarray(result.cameras)), [[0, 6], [0, 6]], atol=1e-6)
+    assert result.violation <= 1e-6
+    broadside = ocp.visibility(ELLIPSE, jnp.array([[0.0, 6.0], [0.0, -6.0]]), ocp.Foreshortened())
+    assert float(result.value) == pytest.approx(float(broadside), rel=1e-9)

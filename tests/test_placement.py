@@ -176,3 +176,22 @@ def test_arc_fraction_inverts_the_walk():
     s = jnp.array([0.0, 0.13, 0.5, 0.77, 0.999])
     np.testing.assert_allclose(ROOM.arc_fraction(ROOM.cameras(s[:, None])), s, atol=1e-12)
     np.testing.assert_allclose(RECT.arc_fraction(jnp.array([[0.0, -25.0]])), [50 / 360], atol=1e-12)
+
+
+def test_coupled_equality_constraint():
+    """g couples the cameras: both on the circle of radius 2 and opposite each other."""
+
+    def g(c):
+        return jnp.concatenate([jnp.linalg.norm(c, axis=1) - 2.0, c[0] + c[1]])
+
+    pair = ocp.EqualityConstraint(
+        g, jnp.array([-3.0, -3.0]), jnp.array([3.0, 3.0]), per_camera=False
+    )
+    starts = np.asarray(pair.sample(jax.random.key(2), 2, 6))
+    np.testing.assert_allclose(np.linalg.norm(starts, axis=-1), 2.0, atol=1e-10)
+    np.testing.assert_allclose(starts[:, 0], -starts[:, 1], atol=1e-10)
+    np.testing.assert_allclose(
+        pair.violations(jnp.array([[2.0, 0.0], [-1.0, 0.0]]), ocp.scenes.circle()), [1.0, 1.0]
+    )
+    with pytest.raises(ValueError, match="need a per-camera g"):
+        pair.candidates(8)
