@@ -23,7 +23,7 @@ import scipy.optimize
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
-from ._optimize import OptimizeResult, Problem, _best, scene_length
+from ._optimize import OptimizeResult, _best, _problem_and_starts, _tolerance
 from ._placement import AbstractPlacement
 from ._scene import Scene
 from ._visibility import VisibilityOptions, valid_visibility, visibility
@@ -208,12 +208,10 @@ def slsqp(
     from each start in turn, with the placement's constraints passed to SLSQP. Same
     arguments and result as `optimize`; `num_evaluations` counts SLSQP's calls of the
     value-and-gradient function."""
-    if starts is None:
-        starts = placement.sample(
-            key if key is not None else jax.random.key(0), n_cameras, n_starts
-        )
-    starts = np.asarray(starts, float)
-    problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
+    problem, starts = _problem_and_starts(
+        scene, objective, placement, n_cameras, n_starts, key, starts, max_steps, options
+    )
+    starts = np.asarray(starts)
     shape = starts.shape[1:]
 
     def host(fn, *extra):
@@ -255,9 +253,16 @@ def slsqp(
         status.append("converged" if out.success else str(out.message))
         steps.append(out.nit)
     seconds = time.perf_counter() - clock
-    tolerance = tolerance if tolerance is not None else (1e-6 if constraints else 1e-8)
     finals = jnp.asarray(np.stack(finals))
+    paths = [jnp.asarray(starts), finals]
     return _best(
-        problem, finals, tuple(status), jnp.asarray(steps), calls, seconds, [],
-        [jnp.asarray(starts), finals], tolerance,
+        problem,
+        finals,
+        tuple(status),
+        jnp.asarray(steps),
+        calls,
+        seconds,
+        [],
+        paths,
+        _tolerance(placement, tolerance),
     )

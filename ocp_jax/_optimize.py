@@ -239,6 +239,39 @@ def _best(problem, params, status, num_steps, evaluations, seconds, history, pat
     )
 
 
+def _problem_and_starts(
+    scene, objective, placement, n_cameras, n_starts, key, starts, max_steps, options
+) -> tuple[Problem, Array]:
+    """Check the arguments shared by the multi-start optimisers (`optimize`, `slsqp`)
+    and build the problem and the starting parameters (s, k, p)."""
+    if not isinstance(placement, AbstractPlacement):
+        raise TypeError(
+            "optimize needs a placement, e.g. ocp.RectangleBoundary(center, width, height); "
+            f"got {type(placement).__name__}."
+        )
+    for name, value in (("n_cameras", n_cameras), ("n_starts", n_starts), ("max_steps", max_steps)):
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive int, got {value!r}.")
+    if starts is None:
+        key = key if key is not None else jax.random.key(0)
+        starts = placement.sample(key, n_cameras, n_starts)
+    starts = jnp.asarray(starts, scene.dtype)
+    if starts.ndim != 3 or starts.shape[1] != n_cameras:
+        raise ValueError(
+            f"starts must have shape (n_starts, n_cameras={n_cameras}, p), got {starts.shape}."
+        )
+    problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
+    return problem, starts
+
+
+def _tolerance(placement: AbstractPlacement, tolerance: float | None) -> float:
+    """The largest admissible constraint violation: 1e-8, or 1e-6 where the
+    augmented Lagrangian (or SLSQP) enforces constraints."""
+    if tolerance is not None:
+        return tolerance
+    return 1e-6 if placement.has_constraints() else 1e-8
+
+
 def optimize(
     scene: Scene,
     objective: AbstractLocalObjective = Foreshortened(),
@@ -276,27 +309,13 @@ def optimize(
 
     **Returns:** an `OptimizeResult`.
     """
-    if not isinstance(placement, AbstractPlacement):
-        raise TypeError(
-            "optimize needs a placement, e.g. ocp.RectangleBoundary(center, width, height); "
-            f"got {type(placement).__name__}."
-        )
-    for name, value in (("n_cameras", n_cameras), ("n_starts", n_starts), ("max_steps", max_steps)):
-        if not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive int, got {value!r}.")
+    problem, starts = _problem_and_starts(
+        scene, objective, placement, n_cameras, n_starts, key, starts, max_steps, options
+    )
     constrained = placement.has_constraints()
-    tolerance = tolerance if tolerance is not None else (1e-6 if constrained else 1e-8)
+    tolerance = _tolerance(placement, tolerance)
     solver = solver if solver is not None else optx.BFGS(rtol=1e-9, atol=1e-9)
-    if starts is None:
-        key = key if key is not None else jax.random.key(0)
-        starts = placement.sample(key, n_cameras, n_starts)
-    starts = jnp.asarray(starts, scene.dtype)
-    if starts.ndim != 3 or starts.shape[1] != n_cameras:
-        raise ValueError(
-            f"starts must have shape (n_starts, n_cameras={n_cameras}, p), got {starts.shape}."
-        )
     count = starts.shape[0]
-    problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
 
     shapes = jax.eval_shape(problem.constraints, starts[0])
     multipliers = tuple(jnp.zeros((count, *s.shape), s.dtype) for s in shapes)
@@ -306,27 +325,29 @@ def optimize(
         starts, multipliers, penalty, valid_start
     )
 
-    clock, evaluations, history = time.perf_counter(), 0, []
+    clock, history = time.perf_counter(), []
     total_steps = jnp.zeros(params.shape[:1], int)
     paths = [params[:count]]
+    scale, valid = float(problem.scale), np.asarray(valid_start)
     last_report, last_violation = clock, None
     for outer in range(outer_iterations if constrained else 1):
         state = _init(solver, problem, params, multipliers, penalty)
         zeros = jnp.zeros(params.shape[:1], int)
         carry = (params, state, ~valid_start, zeros, zeros > 0, zeros)
-        while not bool(jnp.all(carry[2])):
-            before = carry[3]
+        done = ~valid
+        earlier = int(jnp.sum(total_steps[:count]))  # evaluations of earlier outer iterations
+        while not done.all():
             carry = _advance(solver, problem, carry, multipliers, penalty, chunk, max_steps)
-            evaluations += int(jnp.sum((carry[3] - before)[:count]))
-            best = float(jnp.nanmax(jnp.where(valid_start, -carry[1].f_info.f, -jnp.inf)))
+            # one transfer per chunk: what the loop, the history and the report need
+            done, steps, merit = jax.device_get((carry[2], carry[3], carry[1].f_info.f))
             now = time.perf_counter()
-            history.append((now - clock, evaluations, best * float(problem.scale)))
+            best = np.nanmax(np.where(valid, -merit, -np.inf)) * scale
+            history.append((now - clock, earlier + int(steps[:count].sum()), best))
             paths.append(carry[0][:count])
             if progress and now - last_report > 1.0:
-                running = int(jnp.sum(~carry[2]))
                 print(
-                    f"  optimize: outer {outer}, step {int(jnp.max(carry[3]))}/{max_steps}, "
-                    f"{running} of {count} starts running, best Q {history[-1][2]:.6g}",
+                    f"  optimize: outer {outer}, step {steps.max()}/{max_steps}, "
+                    f"{int((~done).sum())} of {count} starts running, best Q {best:.6g}",
                     file=sys.stderr,
                     flush=True,
                 )
@@ -355,6 +376,7 @@ def optimize(
     params, total_steps = params[:count], total_steps[:count]
     status = _status(*(np.asarray(a[:count]) for a in (stopped, result, valid_start)))
     seconds = time.perf_counter() - clock
+    evaluations = int(jnp.sum(total_steps))
     return _best(
         problem, params, status, total_steps, evaluations, seconds, history, paths, tolerance
     )

@@ -35,6 +35,14 @@ def _curve_points(scene: Scene, t: np.ndarray) -> np.ndarray:
     return np.asarray(scene.derivatives(jnp.broadcast_to(jnp.asarray(t), (len(scene), len(t))))[0])
 
 
+def _draw_objects(ax, scene: Scene, colour=OBJECT_COLOUR, resolution: int = 512) -> np.ndarray:
+    """Every curve as a thin line; returns the points drawn (m, resolution + 1, 2)."""
+    points = _curve_points(scene, np.linspace(0.0, 1.0, resolution + 1))
+    for curve in points:
+        ax.plot(*curve.T, color=colour, linewidth=1.5, zorder=2)
+    return points
+
+
 def _runs(points: np.ndarray, mask: np.ndarray) -> list[np.ndarray]:
     """The polyline's pieces over the runs of consecutive segments j (point j to j + 1)
     where mask[j], each as one polyline (so that antialiasing does not show the joins)."""
@@ -89,9 +97,7 @@ def plot_scene(
     """
     ax = _axes(ax)
     t = np.linspace(0.0, 1.0, resolution + 1)
-    points = _curve_points(scene, t)
-    for curve in points:
-        ax.plot(*curve.T, color=OBJECT_COLOUR, linewidth=1.5, zorder=2)
+    points = _draw_objects(ax, scene, resolution=resolution)
     if placement is not None:
         plot_placement(placement, ax)
     if cameras is not None:
@@ -190,8 +196,7 @@ def plot_landscape(
         x, y = positions[defined].T
         image = ax.tricontourf(x, y, values[defined], levels=32, cmap="viridis")
         plt.colorbar(image, ax=ax, label="Q")
-        for curve in _curve_points(scene, np.linspace(0, 1, 513)):
-            ax.plot(*curve.T, color="white", linewidth=1.5)
+        _draw_objects(ax, scene, colour="white")
         if result is not None:
             best = np.asarray(result.cameras[index])
             ax.plot(*best, "*", color="red", markersize=12, markeredgecolor="black")
@@ -217,8 +222,7 @@ def plot_optimization(
     """
     ax = _axes(ax)
     if scene is not None:
-        for curve in _curve_points(scene, np.linspace(0, 1, 513)):
-            ax.plot(*curve.T, color=OBJECT_COLOUR, linewidth=1.5)
+        _draw_objects(ax, scene)
     plot_placement(placement, ax)
     params = np.asarray(result.paths)  # (n, s, k, p)
     fraction = np.linspace(0.0, 1.0, substeps, endpoint=False)[:, None, None, None, None]
