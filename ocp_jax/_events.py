@@ -7,6 +7,9 @@ the visibility of a curve can change.
   F(s) = cross(P - C, x_i(s) - C) beyond P (the grazing ray hits curve i behind P).
 - Crossover times: with several cameras and a camera-dependent q, where two cameras'
   q are equal, so that max_c q_c is smooth between events.
+- For a `Camera` with a view wedge, the wedge's two edges are rays from C as well
+  (crossings of F(s) = cross(u_edge, x(s) - C) in front of C), found with the shadows;
+  with a range R, the range circle's crossings are roots of |x(t) - C|^2 - R^2.
 
 Each root carries the implicit-function derivative (see `_roots.py`); for tangency and
 shadow times with respect to the camera it equals Eqs. 5.28/5.32 and 5.17/5.20.
@@ -19,7 +22,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._roots import grid_brackets, solve_roots
-from ._vec import Vec, cross, dot, norm, sub
+from ._vec import Vec, add, cross, dot, norm, sub
 
 
 class Samples(NamedTuple):
@@ -108,28 +111,49 @@ def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations
     return Roots(t, valid, brackets.count)
 
 
-class TangencyPoints(NamedTuple):
-    """The tangency points of all curves, flattened to arrays of shape (l,)."""
+class RaySources(NamedTuple):
+    """Points that cast rays from the camera, flattened to arrays of shape (l,): the
+    tangency points of all curves (hits count beyond the point, `depth` 1) and the edges
+    of a view wedge (the point C + u_edge, hits count anywhere in front, `depth` 0)."""
 
-    point: Vec  # x_j(T), differentiable
-    curvature: Vec  # x_j''(T) (no derivative needed)
+    point: Vec  # differentiable
+    curvature: Vec  # x_j''(T) at a tangency point (no derivative needed)
     t: Float[Array, " l"]
-    curve: Int[Array, " l"]
+    curve: Int[Array, " l"]  # the tangency point's own curve; -1 for wedge edges
     valid: Bool[Array, " l"]
+    depth: Float[Array, " l"]  # hits count at (x - C) . (P - C) / |P - C|^2 > depth
 
 
-def tangency_points(scene, tangents: Roots) -> TangencyPoints:
+def tangency_points(scene, tangents: Roots) -> RaySources:
     x, _, ddx = scene.components(tangents.t)
     m, r = tangents.t.shape
     flat = lambda v: v.map(jnp.ravel)  # noqa: E731
     curve = jnp.repeat(jnp.arange(m), r)
-    return TangencyPoints(
+    return RaySources(
         flat(x),
         flat(jax.lax.stop_gradient(ddx)),
         jax.lax.stop_gradient(tangents.t).ravel(),
         curve,
         tangents.valid.ravel(),
+        jnp.ones_like(tangents.t).ravel(),
     )
+
+
+def wedge_edges(camera: Vec, edges: Vec) -> RaySources:
+    """The view wedge's edges as ray sources: points C + u for unit directions u (l,)."""
+    zero = jnp.zeros_like(edges.x)
+    return RaySources(
+        add(camera, edges),
+        Vec(zero, zero),
+        zero,
+        jnp.full(zero.shape, -1),
+        jnp.ones(zero.shape, bool),
+        zero,
+    )
+
+
+def join_sources(*sources: RaySources) -> RaySources:
+    return jax.tree.map(lambda *a: jnp.concatenate(a), *sources)
 
 
 def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
@@ -142,10 +166,11 @@ def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
 
 
 def shadow_times(
-    scene, camera: Vec, samples: Samples, tangency: TangencyPoints, budget: int, iterations: int
+    scene, camera: Vec, samples: Samples, tangency: RaySources, budget: int, iterations: int
 ) -> Roots:
-    """Shadow times on every curve of the rays from `camera` through the tangency points,
-    keeping hits beyond the point.
+    """Shadow times on every curve of the rays from `camera` through the ray sources,
+    keeping hits beyond each source's `depth` (beyond a tangency point, in front of the
+    camera for a wedge edge).
 
     Only rays that pass through a curve's bounding disc beyond their tangency point are
     searched on that curve (at most `budget` of them per curve; the count is returned
@@ -165,7 +190,7 @@ def shadow_times(
     reach = radius[:, None] * length  # (m, l)
     passes = (
         (jnp.abs(cross(ray_l, to_centre)) <= reach)
-        & (dot(ray_l, to_centre) + reach > length**2)
+        & (dot(ray_l, to_centre) + reach > tangency.depth[None] * length**2)
         & tangency.valid[None]
     )
     rays = min(budget, passes.shape[1])
@@ -190,13 +215,32 @@ def shadow_times(
     values, slopes = jnp.where(own, r, values), jnp.where(own, dr, slopes)
 
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
-    beyond = (depth[..., :-1] > 1.0) | (depth[..., 1:] > 1.0)
+    start = tangency.depth[pick][..., None]
+    beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
     brackets = grid_brackets(samples.t, values, slopes, budget, beyond & chosen[..., None])
     cells = samples.t.shape[0] - 1
     line = jnp.take_along_axis(pick, brackets.source // (2 * cells), 1)  # (m, r)
     args = (scene, camera, tangency.point.map(lambda a: a[line]))
     s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
     return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
+
+
+def range_function(t, args):
+    """F(t) = |x(t) - C|^2 - R^2, F'(t) = 2 (x(t) - C) . x'(t)."""
+    scene, camera, reach = args
+    x, dx, _ = scene.components(t)
+    sight = sub(x, camera)
+    return dot(sight, sight) - reach**2, 2.0 * dot(sight, dx), dot(sight, sight) + reach**2
+
+
+def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterations: int) -> Roots:
+    """Where the range circle |x - C| = R crosses every curve."""
+    sight = sub(samples.x, jax.lax.stop_gradient(camera))
+    values = (dot(sight, sight) - jax.lax.stop_gradient(reach) ** 2)[:, None]
+    slopes = (2.0 * dot(sight, samples.dx))[:, None]
+    brackets = grid_brackets(samples.t, values, slopes, budget)
+    t, valid = solve_roots(range_function, (scene, camera, reach), brackets, iterations, 1.0)
+    return Roots(t, valid, brackets.count)
 
 
 def crossover_times(

@@ -27,6 +27,20 @@ from ._roots import hermite_extremum
 from ._vec import Vec, cross, dot, sub
 
 
+def in_view(camera, point: Vec) -> Bool[Array, "..."]:
+    """Whether points (a `Vec` of arrays) lie in the view wedge and range of one `Camera`
+    pose: (x - C) . u >= |x - C| cos(half_fov) and |x - C| <= range (occlusion aside)."""
+    d = sub(point, Vec.of(camera.position))
+    distance = jnp.sqrt(dot(d, d))
+    seen = jnp.ones(distance.shape, bool)
+    if camera.half_fov is not None:
+        u = Vec(jnp.cos(camera.heading), jnp.sin(camera.heading))
+        seen = seen & (dot(d, u) >= distance * jnp.cos(camera.half_fov))
+    if camera.range is not None:
+        seen = seen & (distance <= camera.range)
+    return seen
+
+
 def orientation(samples: Samples) -> Float[Array, " m"]:
     """+1 for counter-clockwise curves, -1 for clockwise (sign of the shoelace area)."""
     x = samples.x

@@ -11,7 +11,8 @@ Every occlusion event is a root of a smooth function F(t; theta) of the curve pa
    R slots (`jnp.nonzero(..., size=R)`); the true count is returned so that an exceeded
    budget is reported, never silently truncated.
 3. **Refinement.** Safeguarded Newton in each bracket (bisection when a step would leave
-   it; a step landing exactly on an end is accepted), a fixed number of iterations.
+   it; a step landing exactly on an end is accepted, and so is a step of a few ulps
+   out of it, which is rounding noise at the root), a fixed number of iterations.
 
 `implicit_root` then attaches the derivative of the implicit function theorem: for
 F(t*(theta); theta) = 0, dt* = -(dF/dtheta . dtheta) / (dF/dt) (the general form of the
@@ -174,7 +175,10 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
         hi = jnp.where(same, hi, t)
         newton = t - value / safe_divisor(slope)
         inside = (newton >= lo) & (newton <= hi)
-        new = jnp.where(inside, newton, 0.5 * (lo + hi))
+        # A step of a few ulps out of the bracket is rounding noise of F at its root
+        # (XLA may round F differently where the sign test and the step use it): stay.
+        settling = jnp.abs(newton - t) <= 4 * eps
+        new = jnp.where(inside, newton, jnp.where(settling, t, 0.5 * (lo + hi)))
         settled = jnp.all((jnp.abs(new - t) <= 4 * eps) | ~brackets.candidate)
         return i + 1, lo, hi, new, confirmed | ~same, settled
 

@@ -23,19 +23,23 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from ._camera import Camera
 from ._events import (
     Roots,
     Samples,
     bounding_discs,
     crossover_times,
+    join_sources,
     materialize,
+    range_times,
     sample,
     shadow_times,
     tangency_points,
     tangency_times,
+    wedge_edges,
 )
 from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength, as_local_objective
-from ._occlusion import orientation, visible_points
+from ._occlusion import in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
 from ._roots import safe_divisor
 from ._scene import Scene
@@ -51,8 +55,10 @@ class VisibilityOptions(eqx.Module):
       takes the scene's own choice (4 per B-spline knot span, 4 per Bezier degree, 16 for
       conics). Two roots of one event function closer than a cell are still separated
       (Hermite split), but features much smaller than a cell need a finer grid.
-    - `max_tangents`, `max_shadows`: root budgets per curve and camera; `max_crossovers`:
-      per curve and pair of cameras. Exceeding one raises an error naming the option.
+    - `max_tangents`, `max_shadows` (shadows of tangency points and the crossings of a
+      view wedge's edges), `max_range_crossings` (of a camera's range circle): root
+      budgets per curve and camera; `max_crossovers`: per curve and pair of cameras.
+      Exceeding one raises an error naming the option.
     - `max_intervals`: per curve, the intervals between the events of all cameras that
       are integrated (the budgets above are per camera and rarely all used at once); None
       (default) takes the panels plus half of the cameras' event budgets.
@@ -69,6 +75,7 @@ class VisibilityOptions(eqx.Module):
     max_tangents: int = eqx.field(static=True, default=8)
     max_shadows: int = eqx.field(static=True, default=16)
     max_crossovers: int = eqx.field(static=True, default=16)
+    max_range_crossings: int = eqx.field(static=True, default=8)
     max_intervals: int | None = eqx.field(static=True, default=None)
     quadrature: int = eqx.field(static=True, default=16)
     newton_iterations: int = eqx.field(static=True, default=8)
@@ -79,6 +86,7 @@ class VisibilityOptions(eqx.Module):
             "max_tangents",
             "max_shadows",
             "max_crossovers",
+            "max_range_crossings",
             "max_intervals",
             "quadrature",
             "newton_iterations",
@@ -98,7 +106,8 @@ class CameraPartition(NamedTuple):
     events: Float[Array, "m e"]  # interval k is [events[k], events[k+1]] (events[e] := 1)
     visible: Bool[Array, "m e"]
     tangents: Roots
-    shadows: Roots
+    shadows: Roots  # of the tangency points and of the view wedge's edges
+    ranges: Roots | None  # crossings of the range circle
 
 
 class Events(NamedTuple):
@@ -108,18 +117,34 @@ class Events(NamedTuple):
     crossovers: Roots | None  # batched over the pairs of cameras
     samples: Samples
     sense: Float[Array, " m"]
-    cameras: Vec
+    cameras: Vec  # the positions
+    poses: Camera
 
 
-def _cameras(cameras, dtype) -> Array:
-    cameras = jnp.asarray(cameras)
-    if cameras.ndim == 1:
-        cameras = cameras[None]
-    if cameras.ndim != 2 or cameras.shape[-1] != 2 or cameras.shape[0] < 1:
+def _poses(cameras, dtype) -> Camera:
+    """`cameras` as a `Camera` batched over k >= 1 cameras, in the scene's float type."""
+    if not isinstance(cameras, Camera):
+        cameras = jnp.asarray(cameras)
+        if cameras.ndim == 1:
+            cameras = cameras[None]
+        if cameras.ndim != 2 or cameras.shape[-1] != 2 or cameras.shape[0] < 1:
+            raise ValueError(
+                "cameras must have shape (k, 2) with k >= 1 (one row per camera), or be an "
+                f"ocp.Camera, got {cameras.shape}."
+            )
+        cameras = Camera(cameras)
+    if cameras.position.ndim == 1:
+        cameras = jax.tree.map(lambda a: a[None], cameras)
+    if cameras.position.ndim != 2 or cameras.shape[0] < 1:
         raise ValueError(
-            f"cameras must have shape (k, 2) with k >= 1 (one row per camera), got {cameras.shape}."
+            f"a Camera's position must have shape (k, 2) with k >= 1, got {cameras.position.shape}."
         )
-    return cameras.astype(jnp.result_type(cameras.dtype, dtype, float))
+    dtype = jnp.result_type(cameras.position.dtype, dtype, float)
+    return jax.tree.map(lambda a: a.astype(dtype), cameras)
+
+
+def _as_input(cameras):
+    return cameras if isinstance(cameras, Camera) else jnp.asarray(cameras)
 
 
 def _intervals(events: Float[Array, "m e"]):
@@ -127,21 +152,31 @@ def _intervals(events: Float[Array, "m e"]):
     return events, ends
 
 
-def _camera_partition(scene, camera: Vec, samples, sense, options) -> CameraPartition:
+def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPartition:
     iters = options.newton_iterations
+    camera = Vec.of(pose.position)
     tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
-    points = tangency_points(scene, tangents)
-    shadows = shadow_times(scene, camera, samples, points, options.max_shadows, iters)
-    seam = jnp.zeros_like(tangents.t[:, :1])
-    events = jnp.sort(jnp.concatenate([seam, tangents.t, shadows.t], 1), axis=1)
+    sources = tangency_points(scene, tangents)
+    if pose.half_fov is not None:
+        # Shadows of tangency points out of view fall where nothing is in view.
+        frozen = jax.lax.stop_gradient(pose)
+        sources = sources._replace(valid=sources.valid & in_view(frozen, sources.point))
+        edges = pose.heading + jnp.stack([pose.half_fov, -pose.half_fov])
+        sources = join_sources(sources, wedge_edges(camera, Vec(jnp.cos(edges), jnp.sin(edges))))
+    shadows = shadow_times(scene, camera, samples, sources, options.max_shadows, iters)
+    pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t, shadows.t]
+    ranges = None
+    if pose.range is not None:
+        ranges = range_times(scene, camera, pose.range, samples, options.max_range_crossings, iters)
+        pieces.append(ranges.t)
+    events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # The visibility decision carries no derivative.
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start + end)
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]))
-    visible = visible_points(
-        jax.lax.stop_gradient(camera), samples, sense, t_mid, x_mid, dx_mid
-    )
-    return CameraPartition(events, visible, tangents, shadows)
+    frozen = jax.lax.stop_gradient(pose)
+    visible = visible_points(Vec.of(frozen.position), samples, sense, t_mid, x_mid, dx_mid)
+    return CameraPartition(events, visible & in_view(frozen, x_mid), tangents, shadows, ranges)
 
 
 def _integrand(t, args):
@@ -202,11 +237,12 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
     cameras and a camera-dependent q)."""
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
-    cameras = Vec.of(_cameras(cameras, scene.dtype))
+    poses = _poses(cameras, scene.dtype)
+    cameras = Vec.of(poses.position)
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = orientation(samples)
     partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
-        scene, cameras, samples, sense, options
+        scene, poses, samples, sense, options
     )
     crossovers = None
     k = cameras.x.shape[0]
@@ -223,7 +259,7 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
             options.max_crossovers,
             options.newton_iterations,
         )
-    return Events(partitions, crossovers, samples, sense, cameras)
+    return Events(partitions, crossovers, samples, sense, cameras, poses)
 
 
 def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
@@ -259,11 +295,18 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
     `_check_cameras`; `intervals`: the union intervals used and their budget, where Q was
     integrated)."""
     partitions, crossovers, samples = events.partitions, events.crossovers, events.samples
+    poses = events.poses
+    pose_angles = [a for a in (poses.heading, poses.half_fov, poses.range) if a is not None]
     finite, inside, on_curve, too_close = _check_cameras(
         *jax.lax.stop_gradient((scene, events.cameras)), samples, events.sense, options.quadrature
     )
     failures = [
         (~jnp.all(finite), "ocp_jax: a camera position is NaN or inf; pass finite coordinates."),
+        (
+            ~jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in pose_angles])),
+            "ocp_jax: a camera's heading, half_fov or range is NaN or inf (a range of inf: "
+            "pass range=None for an unlimited one).",
+        ),
         (
             jnp.any(inside),
             "ocp_jax: a camera lies inside an object; cameras must be outside every curve.",
@@ -285,6 +328,15 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
         (partitions.tangents.count, options.max_tangents, "tangency times", "max_tangents"),
         (partitions.shadows.count, options.max_shadows, "shadow times", "max_shadows"),
     ]
+    if partitions.ranges is not None:
+        budgets.append(
+            (
+                partitions.ranges.count,
+                options.max_range_crossings,
+                "range circle crossings",
+                "max_range_crossings",
+            )
+        )
     if crossovers is not None:
         budgets.append(
             (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")
@@ -337,7 +389,7 @@ def visibility(
     Raises (also under jit, via `equinox.error_if`) when a camera is NaN, inside an object
     or on a curve, or when a root budget is exceeded.
     """
-    return _visibility(scene, jnp.asarray(cameras), objective, options)
+    return _visibility(scene, _as_input(cameras), objective, options)
 
 
 @eqx.filter_jit
@@ -408,7 +460,7 @@ def visible_intervals(
 
     **Returns:** a `VisibleIntervals`; `.to_list(c, i)` for plain intervals.
     """
-    return _visible_intervals(scene, jnp.asarray(cameras), options)
+    return _visible_intervals(scene, _as_input(cameras), options)
 
 
 @eqx.filter_jit

@@ -439,10 +439,54 @@ def _merge(pts, tol):
     return np.array(keep)
 
 
-def _camera_partition(geo, C, merge_tol=1e-12):
+def _in_view(X, C, pose):
+    """Inside the view wedge and range of a pose dict (heading, half_fov, range)."""
+    D = X - C
+    dist = np.sqrt(_dot(D, D))
+    ok = np.ones(X.shape[0], dtype=bool)
+    if pose.get("half_fov") is not None:
+        u = np.array([np.cos(pose["heading"]), np.sin(pose["heading"])])
+        ok &= D @ u >= dist * np.cos(pose["half_fov"])
+    if pose.get("range") is not None:
+        ok &= dist <= pose["range"]
+    return ok
+
+
+def _pose_breakpoints(geo, i, C, pose):
+    """Where curve i crosses the edges of the view wedge (in front of C) and the range
+    circle: the only other places where a pose's view of it can change."""
+    c = geo.curves[i]
+    S = geo.tg[i][None, :]
+    XC = geo.xg[i][None, :, :] - C
+    out = []
+    if pose.get("half_fov") is not None:
+        for a in (pose["heading"] + pose["half_fov"], pose["heading"] - pose["half_fov"]):
+            e = np.array([np.cos(a), np.sin(a)])
+
+            def F(rows, s, _e=e):
+                return _cross(_e, _eval_x(c, s) - C)
+
+            _, roots = _roots_rows(F, S, _cross(e, XC))
+            if roots.size:
+                out.append(roots[_dot(_eval_x(c, roots) - C, e) > 0])
+    if pose.get("range") is not None:
+        R2 = pose["range"] ** 2
+
+        def G(rows, s):
+            d = _eval_x(c, s) - C
+            return _dot(d, d) - R2
+
+        _, roots = _roots_rows(G, S, _dot(XC, XC) - R2)
+        out.append(roots)
+    return [np.mod(r, 1.0) for r in out]
+
+
+def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
     """For one camera: per curve, the sorted breakpoints b (b[0]=0, b[-1]=1)
-    and a boolean array vis (len(b)-1) of sub-interval visibility."""
+    and a boolean array vis (len(b)-1) of sub-interval visibility. `pose`: optional
+    dict with heading, half_fov (or None) and range (or None)."""
     C = np.asarray(C, dtype=float)
+    pose = pose or {}
     sil = _silhouettes(geo, C)
     Ppts = [(_eval_x(geo.curves[i], sil[i]) if sil[i].size else np.zeros((0, 2)))
             for i in range(geo.n)]
@@ -473,6 +517,7 @@ def _camera_partition(geo, C, merge_tol=1e-12):
                 dist = np.abs(np.mod(roots - P_t[rows] + 0.5, 1.0) - 0.5)
                 keep &= ~((P_curve[rows] == i) & (dist < 1e-7))
                 pts.append(np.mod(roots[keep], 1.0))
+        pts.extend(_pose_breakpoints(geo, i, C, pose))
         b = _merge(np.concatenate(pts), merge_tol)
         bps.append(b)
     # classify sub-intervals by a ray cast at their midpoints
@@ -486,7 +531,7 @@ def _camera_partition(geo, C, merge_tol=1e-12):
     for i in range(geo.n):
         sel = own == i
         X[sel] = _eval_x(geo.curves[i], tm[sel])
-    vis = _ray_clear(geo, C, X, own, tm)
+    vis = _ray_clear(geo, C, X, own, tm) & _in_view(X, C, pose)
     out = []
     pos = 0
     for b in bps:
@@ -613,11 +658,12 @@ def reference_visible_intervals(curves, camera, n_grid: int = 4096):
     return res
 
 
-def _evaluate(curves, cameras, objective, n_grid, quad_tol):
+def _evaluate(curves, cameras, objective, n_grid, quad_tol, poses=None):
     _check_objective(objective)
     cams = np.atleast_2d(np.asarray(cameras, dtype=float))
     geo = _Geo(curves, n_grid)
-    parts = [_camera_partition(geo, C) for C in cams]
+    poses = poses or [None] * len(cams)
+    parts = [_camera_partition(geo, C, pose=p) for C, p in zip(cams, poses)]
     total, err = 0.0, 0.0
     ncam = cams.shape[0]
     for i, c in enumerate(geo.curves):
@@ -703,12 +749,14 @@ def _split_at_kinks(curve, cams, a, b, piece, seen, m=128):
 
 
 def reference_visibility(curves, cameras, objective: str = "foreshortened",
-                         n_grid: int = 4096, quad_tol: float = 1e-14) -> float:
+                         n_grid: int = 4096, quad_tol: float = 1e-14, poses=None) -> float:
     """Reference value of Q (see module docstring).
 
     n_grid: grid points per curve used to *detect* roots (not an accuracy
-    parameter); quad_tol: relative tolerance of the adaptive quadrature."""
-    return _evaluate(curves, cameras, objective, n_grid, quad_tol)[0]
+    parameter); quad_tol: relative tolerance of the adaptive quadrature; poses: optional
+    list (one per camera) of dicts with heading, half_fov and range (None: unlimited),
+    restricting each camera to its view wedge and range."""
+    return _evaluate(curves, cameras, objective, n_grid, quad_tol, poses)[0]
 
 
 def reference_visibility_with_error(curves, cameras, objective: str = "foreshortened",
