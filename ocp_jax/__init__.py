@@ -15,6 +15,7 @@ from ._curves import BezierCurve as BezierCurve
 from ._curves import BSplineCurve as BSplineCurve
 from ._curves import Circle as Circle
 from ._curves import Ellipse as Ellipse
+from ._curves import PiecewiseCurve as PiecewiseCurve
 from ._objectives import AbstractLocalObjective as AbstractLocalObjective
 from ._objectives import Foreshortened as Foreshortened
 from ._objectives import LocalObjective as LocalObjective

@@ -18,7 +18,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._vec import Vec, add, scale
 
-__all__ = ["AbstractCurve", "BezierCurve", "BSplineCurve", "Circle", "Ellipse"]
+__all__ = ["AbstractCurve", "BSplineCurve", "BezierCurve", "Circle", "Ellipse", "PiecewiseCurve"]
 
 _TWO_PI = 2.0 * math.pi
 
@@ -56,8 +56,8 @@ def _bernstein_combination(tp, sp, degree: int, points: Array) -> Vec:
     x = y = 0.0
     for i in range(degree + 1):
         basis = math.comb(degree, i) * tp[i] * sp[degree - i]
-        x = x + basis * points[i, 0]
-        y = y + basis * points[i, 1]
+        x = x + basis * points[..., i, 0]
+        y = y + basis * points[..., i, 1]
     return Vec(x, y)
 
 
@@ -73,6 +73,14 @@ class AbstractCurve(eqx.Module):
 
         At t = 1 the left limits are returned (a closed curve has x(1) = x(0)).
         """
+
+    def components_left(self, t: Float[Array, "*shape"]) -> tuple[Vec, Vec, Vec]:
+        """Left limits of (x, x', x'') at t (they differ from `components` at corners)."""
+        return self.components(t)
+
+    def corners(self) -> np.ndarray:
+        """Static parameters where x' may jump (corners): none for a smooth curve."""
+        return np.zeros(0)
 
     def derivatives(
         self, t: Float[ArrayLike, "*shape"]
@@ -160,9 +168,8 @@ class BezierCurve(AbstractCurve):
             )
         start, end = p[1] - p[0], p[-1] - p[-2]
         cross = start[0] * end[1] - start[1] * end[0]
-        if (
-            np.dot(start, end) <= 0
-            or abs(cross) > 1e-7 * np.linalg.norm(start) * np.linalg.norm(end)
+        if np.dot(start, end) <= 0 or abs(cross) > 1e-7 * np.linalg.norm(start) * np.linalg.norm(
+            end
         ):
             raise ValueError(
                 "BezierCurve has a corner at the seam t = 0: P1 - P0 and Pn - P(n-1) must "
@@ -377,3 +384,165 @@ class Ellipse(AbstractCurve):
 
     def panels(self):
         return 8
+
+
+class PiecewiseCurve(AbstractCurve):
+    """A closed path of n Bezier segments of one degree d (line segments: d = 1), joined
+    end to start, with corners allowed at the joints: polygons, rounded rectangles, the
+    closed paths of SVG files. Segment j is traced for t in [j/n, (j+1)/n):
+
+        x(t) = sum_i B_{i,d}(s) P_{j,i},  s = n t - j,  x'(t) = n dx/ds,
+
+    with P_{j,d} = P_{j+1,0}: each segment ends where the next starts (cyclically), so
+    the path is closed for any parameter values (and differentiable in them).
+
+    Every joint t = j/n counts as a corner (an event of every camera, a quadrature
+    breakpoint, a grid node, and the source of a shadow ray where the line of sight
+    leaves the object there); a joint that happens to be smooth only splits intervals.
+    Build one with `PiecewiseCurve.polygon(vertices)`, `PiecewiseCurve.from_segments`,
+    `PiecewiseCurve.rounded_rectangle`, or `ocp.load_svg`.
+
+    **Arguments:**
+    - `points`: shape (n, d, 2): segment j's control points P_{j,0..d-1} (its start
+      and inner points; a polygon's vertices as shape (n, 1, 2)).
+    """
+
+    points: Float[Array, "n d 2"]
+
+    def __init__(self, points: Float[ArrayLike, "n d 2"]):
+        points = jnp.asarray(points)
+        if not jnp.issubdtype(points.dtype, jnp.floating):
+            points = points.astype(jnp.result_type(float))
+        if points.ndim != 3 or points.shape[2] != 2 or points.shape[1] < 1:
+            raise ValueError(
+                f"PiecewiseCurve points must have shape (segments, degree, 2), got {points.shape}."
+            )
+        if points.shape[0] * points.shape[1] < 3:
+            raise ValueError(
+                "A closed PiecewiseCurve needs at least 3 control points in all (3 segments "
+                f"of lines), got {points.shape[0]} segments of degree {points.shape[1]}."
+            )
+        if _is_concrete(points) and not np.all(np.isfinite(np.asarray(points))):
+            raise ValueError("PiecewiseCurve contains NaN or inf; every coordinate must be finite.")
+        self.points = points
+
+    def __check_init__(self):
+        if _is_concrete(self.points):
+            _check_regular(self, "PiecewiseCurve")
+
+    @property
+    def control_points(self) -> Float[Array, "n d1 2"]:
+        """Every segment's full control points P_{j,0..d}, shape (n, d + 1, 2)."""
+        return jnp.concatenate([self.points, jnp.roll(self.points[:, :1], -1, axis=0)], 1)
+
+    @property
+    def degree(self) -> int:
+        return self.points.shape[1]
+
+    @property
+    def segments(self) -> int:
+        return self.points.shape[0]
+
+    @classmethod
+    def polygon(cls, vertices: Float[ArrayLike, "n 2"]) -> "PiecewiseCurve":
+        """The closed polygon through `vertices` (n >= 3, not repeated at the end)."""
+        vertices = _as_points(vertices, "PiecewiseCurve.polygon vertices", 3)
+        return cls(vertices[:, None])
+
+    @classmethod
+    def from_segments(cls, segments) -> "PiecewiseCurve":
+        """From a list of Bezier segments, arrays (d_j + 1, 2) of any degrees d_j >= 1
+        (a line is [start, end]), each ending where the next starts (checked); all are
+        raised to the highest degree (exactly)."""
+        segments = [_as_points(seg, "PiecewiseCurve segment", 2) for seg in segments]
+        if _is_concrete(*segments):
+            ends = np.stack([np.asarray(seg[-1]) for seg in segments])
+            starts = np.roll(np.stack([np.asarray(seg[0]) for seg in segments]), -1, axis=0)
+            scale = max(np.ptp(np.concatenate(segments), axis=0).max(), 1e-300)
+            gap = np.abs(ends - starts).max(axis=1)
+            if np.any(gap > 1e-9 * scale):
+                j = int(np.argmax(gap))
+                raise ValueError(
+                    f"PiecewiseCurve is not closed: segment {j} ends at {ends[j].tolist()} "
+                    f"but segment {(j + 1) % len(segments)} starts at {starts[j].tolist()}."
+                )
+        degree = max(seg.shape[0] - 1 for seg in segments)
+        return cls(jnp.stack([_elevate(seg, degree)[:-1] for seg in segments]))
+
+    @classmethod
+    def rounded_rectangle(
+        cls, center: Float[ArrayLike, "2"], width: float, height: float, radius: float
+    ) -> "PiecewiseCurve":
+        """An axis-aligned rectangle with corners rounded by quarter circles of `radius`
+        (cubic Bezier arcs, kappa = 4 (sqrt 2 - 1) / 3; relative radius error 3e-4):
+        eight segments, the joints between sides and arcs are smooth."""
+        cx, cy = (float(v) for v in np.asarray(center, float))
+        a, b, r = 0.5 * width, 0.5 * height, float(radius)
+        if not 0 < r < min(a, b):
+            raise ValueError(f"rounded_rectangle radius must lie in (0, {min(a, b)}), got {r}.")
+        k = 4.0 * (math.sqrt(2.0) - 1.0) / 3.0 * r
+        segments = []
+        for angle in (0.0, 0.5 * math.pi, math.pi, 1.5 * math.pi):  # counter-clockwise
+            c, s = round(math.cos(angle)), round(math.sin(angle))
+            rot = np.array([[c, -s], [s, c]])
+            side_a, side_b = (a, b) if c != 0 else (b, a)
+            # The right side (in the rotated frame), then the arc into the top side.
+            start = rot @ [side_a, -(side_b - r)]
+            end = rot @ [side_a, side_b - r]
+            segments.append(np.array([start, end]))
+            arc_end = rot @ [side_a - r, side_b]
+            segments.append(
+                np.array([end, end + rot @ [0.0, k], arc_end + rot @ [k, 0.0], arc_end])
+            )
+        return cls.from_segments([seg + [cx, cy] for seg in segments])
+
+    def components(self, t):
+        return self._segment_components(t, left=False)
+
+    def components_left(self, t):
+        return self._segment_components(t, left=True)
+
+    def _segment_components(self, t, left: bool):
+        n, d = self.segments, self.degree
+        u = t * n
+        # A joint is where u is an integer up to rounding (t = j/n need not be exact).
+        joint = jnp.round(u)
+        at_joint = jnp.abs(u - joint) <= 8 * n * jnp.finfo(u.dtype).eps
+        if left:
+            segment = jnp.where(at_joint, joint - 1.0, jnp.ceil(u) - 1.0)
+        else:
+            segment = jnp.where(at_joint, joint, jnp.floor(u))
+        segment = jnp.clip(segment, 0, n - 1)
+        s = u - segment
+        p = self.control_points[segment.astype(jnp.int32)]  # t.shape + (d + 1, 2)
+        d1 = (n * d) * (p[..., 1:, :] - p[..., :-1, :])
+        sp, tp = _powers(1.0 - s, d), _powers(s, d)
+        x = _bernstein_combination(tp, sp, d, p)
+        dx = _bernstein_combination(tp, sp, d - 1, d1)
+        if d == 1:
+            zero = jnp.zeros_like(t)
+            return x, dx, Vec(zero, zero)
+        d2 = (n * (d - 1)) * (d1[..., 1:, :] - d1[..., :-1, :])
+        return x, dx, _bernstein_combination(tp, sp, d - 2, d2)
+
+    def corners(self):
+        return np.arange(self.segments) / self.segments
+
+    def panels(self):
+        # The foreshortened q on a line at distance a from the camera is the Lorentzian
+        # a^2 / (a^2 + y^2): 16 Gauss-Legendre nodes on a panel of half-length h err by
+        # about (a/h + sqrt(1 + (a/h)^2))^-32, 1e-19 at a = 2h, 1e-6 at a = h / 2.
+        return self.segments * 4
+
+    def grid_cells(self):
+        return self.segments * (1 if self.degree == 1 else 4 * self.degree)
+
+
+def _elevate(points: Array, degree: int) -> Array:
+    """The same Bezier segment with control points of a higher `degree`."""
+    while points.shape[0] - 1 < degree:
+        n = points.shape[0]  # degree n - 1 -> n
+        i = np.arange(1, n)[:, None] / n
+        inner = i * points[:-1] + (1.0 - i) * points[1:]
+        points = jnp.concatenate([points[:1], inner, points[-1:]])
+    return points

@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._roots import grid_brackets, solve_roots
@@ -27,17 +28,41 @@ from ._vec import Vec, add, cross, dot, norm, sub
 
 class Samples(NamedTuple):
     """Every curve sampled on the grid t_0 = 0 < ... < t_N = 1 (camera independent);
-    `x`, `dx`, `ddx` have arrays of shape (m, N + 1)."""
+    `x`, `dx`, `ddx` have arrays of shape (m, N + 1). Where a curve has corners (grid
+    nodes), `dx`, `ddx` are the right limits and `dx_end`, `ddx_end` the left limits
+    (None for smooth scenes)."""
 
     t: Float[Array, " n1"]
     x: Vec
     dx: Vec
     ddx: Vec
+    dx_end: Vec | None = None
+    ddx_end: Vec | None = None
+
+    def at_nodes(self, fn):
+        """fn(x', x'') at the nodes: one array for smooth scenes, or the pair (right
+        limits, left limits) that `grid_brackets` takes where x' jumps."""
+        start = fn(self.dx, self.ddx)
+        if self.dx_end is None:
+            return start
+        return start, fn(self.dx_end, self.ddx_end)
 
 
 def sample(scene, cells: int) -> Samples:
-    t = jnp.linspace(0.0, 1.0, cells + 1, dtype=scene.dtype)
-    return materialize(Samples(t, *scene.components(jnp.broadcast_to(t, (len(scene), cells + 1)))))
+    align = scene.grid_alignment()
+    if cells % align:
+        raise ValueError(
+            f"The grid of {cells} cells per curve must be a multiple of {align} (the "
+            "curves' segment counts), so that every corner is a grid node: pass "
+            f"VisibilityOptions(grid={align * -(-cells // align)}) or leave grid=None."
+        )
+    t = jnp.arange(cells + 1, dtype=scene.dtype) / cells
+    nodes = jnp.broadcast_to(t, (len(scene), cells + 1))
+    x, dx, ddx = scene.components(nodes)
+    if not scene.has_corners:
+        return materialize(Samples(t, x, dx, ddx))
+    _, dx_end, ddx_end = scene.components_left(nodes)
+    return materialize(Samples(t, x, dx, ddx, dx_end, ddx_end))
 
 
 @jax.custom_jvp
@@ -104,24 +129,27 @@ def crossover_function(t, args):
 
 def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations: int) -> Roots:
     sight = sub(samples.x, jax.lax.stop_gradient(camera))
-    values = cross(samples.dx, sight)[:, None]
-    slopes = cross(samples.ddx, sight)[:, None]
-    brackets = grid_brackets(samples.t, values, slopes, budget)
+    values = samples.at_nodes(lambda dx, _: cross(dx, sight)[:, None])
+    slopes = samples.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
+    scale = samples.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
+    brackets = grid_brackets(samples.t, values, slopes, budget, scale=scale)
     t, valid = solve_roots(tangency_function, (scene, camera), brackets, iterations, 1.0)
     return Roots(t, valid, brackets.count)
 
 
 class RaySources(NamedTuple):
     """Points that cast rays from the camera, flattened to arrays of shape (l,): the
-    tangency points of all curves (hits count beyond the point, `depth` 1) and the edges
-    of a view wedge (the point C + u_edge, hits count anywhere in front, `depth` 0)."""
+    tangency points and the silhouette corners of all curves (hits count beyond the
+    point, `depth` 1) and the edges of a view wedge (the point C + u_edge, hits count
+    anywhere in front, `depth` 0)."""
 
     point: Vec  # differentiable
     curvature: Vec  # x_j''(T) at a tangency point (no derivative needed)
     t: Float[Array, " l"]
-    curve: Int[Array, " l"]  # the tangency point's own curve; -1 for wedge edges
+    curve: Int[Array, " l"]  # the point's own curve; -1 for wedge edges
     valid: Bool[Array, " l"]
     depth: Float[Array, " l"]  # hits count at (x - C) . (P - C) / |P - C|^2 > depth
+    tangent: Bool[Array, " l"]  # a tangency point (the ray touches its own curve)
 
 
 def tangency_points(scene, tangents: Roots) -> RaySources:
@@ -136,6 +164,34 @@ def tangency_points(scene, tangents: Roots) -> RaySources:
         curve,
         tangents.valid.ravel(),
         jnp.ones_like(tangents.t).ravel(),
+        jnp.ones(tangents.t.size, bool),
+    )
+
+
+def silhouette_corners(scene, camera: Vec, samples: Samples) -> RaySources:
+    """The corners where the line of sight leaves an object: cross(x', x - C) has
+    different signs (or a zero) on the two sides of the corner, so the camera sees one
+    of its edges from the front and the other from behind."""
+    times, real = scene.corners()
+    m, c = times.shape
+    cells = samples.t.shape[0] - 1
+    node = np.round(times * cells).astype(int)  # right limits at node, left at node or N
+    node_end = np.where(node == 0, cells, node)
+    rows = np.arange(m)[:, None]
+    sight = sub(samples.x, jax.lax.stop_gradient(camera)).map(lambda a: a[rows, node])
+    right = cross(samples.dx.map(lambda a: a[rows, node]), sight)
+    left = cross(samples.dx_end.map(lambda a: a[rows, node_end]), sight)
+    point, _, _ = scene.components(jnp.asarray(times, scene.dtype))
+    flat = lambda v: v.map(jnp.ravel)  # noqa: E731
+    zero = jnp.zeros(m * c, scene.dtype)
+    return RaySources(
+        flat(point),
+        Vec(zero, zero),
+        jnp.asarray(times.ravel(), scene.dtype),
+        jnp.asarray(np.repeat(np.arange(m), c)),
+        (jnp.asarray(real) & (right * left <= 0)).ravel(),
+        jnp.ones_like(zero),
+        jnp.zeros(m * c, bool),
     )
 
 
@@ -149,6 +205,7 @@ def wedge_edges(camera: Vec, edges: Vec) -> RaySources:
         jnp.full(zero.shape, -1),
         jnp.ones(zero.shape, bool),
         zero,
+        jnp.zeros(zero.shape, bool),
     )
 
 
@@ -179,7 +236,8 @@ def shadow_times(
     On the tangency point's own curve j the ray function g(s) = cross(P - C, x_j(s) - C)
     has a double root at s = T (the ray touches the curve there). It is deflated,
     r(s) = g(s) / u^2 with u = s - T wrapped to [-1/2, 1/2) (r(T) = g''(T) / 2), so that
-    only the genuine crossings remain, with no window around T excluded.
+    only the genuine crossings remain, with no window around T excluded. A corner's ray
+    has a simple root at its corner T, a grid node, where g is set to exactly 0.
     """
     c0 = jax.lax.stop_gradient(camera)
     ray = materialize(jax.lax.stop_gradient(sub(tangency.point, camera)))  # (l,)
@@ -202,22 +260,34 @@ def shadow_times(
     ray_grid = ray.map(lambda a: a[pick][..., None])  # (m, rays, 1)
     sight = sub(samples.x, c0).map(lambda a: a[:, None])  # (m, 1, N + 1)
     values = cross(ray_grid, sight)
-    slopes = cross(ray_grid, samples.dx.map(lambda a: a[:, None]))
 
     u = samples.t[None, None] - tangency.t[pick][..., None]
     u = u - jnp.round(u)
     near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
     u = jnp.where(near, 1.0, u)
+    own = (tangency.curve[pick] == jnp.arange(pick.shape[0])[:, None])[..., None]
+    tangent = own & tangency.tangent[pick][..., None]
     curvature = cross(ray_grid, tangency.curvature.map(lambda a: a[pick][..., None]))
     r = jnp.where(near, 0.5 * curvature, values / u**2)
-    dr = jnp.where(near, 0.0, (slopes - 2.0 * r * u) / u**2)
-    own = (tangency.curve[pick] == jnp.arange(pick.shape[0])[:, None])[..., None]
-    values, slopes = jnp.where(own, r, values), jnp.where(own, dr, slopes)
+    # A corner's ray has a simple root at the corner, a grid node: make it exactly 0
+    # there (an event at the corner, which is one already).
+    values = jnp.where(tangent, r, jnp.where(own & near, 0.0, values))
+
+    def slopes_at(dx, _):
+        slopes = cross(ray_grid, dx.map(lambda a: a[:, None]))
+        return jnp.where(tangent, jnp.where(near, 0.0, (slopes - 2.0 * r * u) / u**2), slopes)
+
+    slopes = samples.at_nodes(slopes_at)
 
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
     start = tangency.depth[pick][..., None]
     beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
-    brackets = grid_brackets(samples.t, values, slopes, budget, beyond & chosen[..., None])
+    # Rays along a straight edge make F vanish on it up to rounding (deflated values
+    # on a tangency point's own curve are exempt).
+    scale = jnp.where(tangent, 0.0, norm(ray_grid) * norm(sight))
+    brackets = grid_brackets(
+        samples.t, values, slopes, budget, beyond & chosen[..., None], scale=scale
+    )
     cells = samples.t.shape[0] - 1
     line = jnp.take_along_axis(pick, brackets.source // (2 * cells), 1)  # (m, r)
     args = (scene, camera, tangency.point.map(lambda a: a[line]))
@@ -237,7 +307,7 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
     """Where the range circle |x - C| = R crosses every curve."""
     sight = sub(samples.x, jax.lax.stop_gradient(camera))
     values = (dot(sight, sight) - jax.lax.stop_gradient(reach) ** 2)[:, None]
-    slopes = (2.0 * dot(sight, samples.dx))[:, None]
+    slopes = samples.at_nodes(lambda dx, _: 2.0 * dot(sight, dx)[:, None])
     brackets = grid_brackets(samples.t, values, slopes, budget)
     t, valid = solve_roots(range_function, (scene, camera, reach), brackets, iterations, 1.0)
     return Roots(t, valid, brackets.count)
@@ -252,17 +322,25 @@ def crossover_times(
     def difference(x, dx):
         return frozen.evaluate(x, dx, ca) - frozen.evaluate(x, dx, cb)
 
-    values, slopes = jax.jvp(difference, (samples.x, samples.dx), (samples.dx, samples.ddx))
-    # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user q)
-    # either camera is the best one: count the node as just positive (by more than the
-    # Hermite interpolant of the noise can dip), so that rounding noise brackets no roots.
-    scale = jnp.abs(frozen.evaluate(samples.x, samples.dx, ca)) + jnp.abs(
-        frozen.evaluate(samples.x, samples.dx, cb)
-    )
-    rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
-    tie = jnp.abs(values) <= rounding
-    values = jnp.where(tie, rounding, values)
-    brackets = grid_brackets(samples.t, values[:, None], slopes[:, None], budget)
+    def values_and_slopes(dx, ddx):
+        values, slopes = jax.jvp(difference, (samples.x, dx), (dx, ddx))
+        # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
+        # q) either camera is the best one: count the node as just positive (by more
+        # than the Hermite interpolant of the noise can dip), so that rounding noise
+        # brackets no roots.
+        scale = jnp.abs(frozen.evaluate(samples.x, dx, ca)) + jnp.abs(
+            frozen.evaluate(samples.x, dx, cb)
+        )
+        rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
+        values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
+        return values[:, None], slopes[:, None]
+
+    nodes = samples.at_nodes(values_and_slopes)
+    if samples.dx_end is None:
+        values, slopes = nodes
+    else:
+        values, slopes = (nodes[0][0], nodes[1][0]), (nodes[0][1], nodes[1][1])
+    brackets = grid_brackets(samples.t, values, slopes, budget)
     args = (scene, camera_a, camera_b, objective)
     t, valid = solve_roots(crossover_function, args, brackets, iterations, 1.0)
     return Roots(t, valid, brackets.count)

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from ._events import Samples
-from ._roots import hermite_extremum
+from ._roots import cell_ends, hermite_extremum
 from ._vec import Vec, cross, dot, sub
 
 
@@ -56,13 +56,13 @@ def _crosses_segment(g, dg, depth, reach, h):
     division: D_c = (g0 D1 - g1 D0) / (g0 - g1) lies in (0, reach). A pair of crossings
     inside one cell (a grazing occluder) shows as the cubic Hermite interpolant of (g, g')
     changing sign at its extremum."""
-    positive = g >= 0
-    g0, g1, d0, d1 = g[..., :-1], g[..., 1:], depth[..., :-1], depth[..., 1:]
-    crossing = positive[..., :-1] != positive[..., 1:]
+    g0, g1 = cell_ends(g)
+    d0, d1 = depth[..., :-1], depth[..., 1:]
+    crossing = (g0 >= 0) != (g1 >= 0)
     num, den = g0 * d1 - g1 * d0, g0 - g1
     inside = (num * den > 0) & (jnp.abs(num) < reach * jnp.abs(den))
     h = jnp.broadcast_to(h, g0.shape)
-    split, peak, turning = hermite_extremum(g0, g1, dg[..., :-1], dg[..., 1:], h)
+    split, peak, turning = hermite_extremum(g0, g1, *cell_ends(dg), h)
     pair = turning & ~crossing & (g0 * peak < 0)
     d_pair = d0 + split * (d1 - d0)
     return (crossing & inside) | (pair & (d_pair > 0) & (d_pair < reach))
@@ -88,9 +88,9 @@ def visible_points(
     # Every other curve j: arrays (m, q, m_j, N + 1).
     dd = d.map(lambda a: a[:, :, None, None])
     sight_j = sight.map(lambda a: a[None, None])
-    dx_j = samples.dx.map(lambda a: a[None, None])
+    dg_j = samples.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None, None])))
     others = _crosses_segment(
-        cross(dd, sight_j), cross(dd, dx_j), dot(dd, sight_j), reach[:, :, None, None], h
+        cross(dd, sight_j), dg_j, dot(dd, sight_j), reach[:, :, None, None], h
     )
     not_own = ~jnp.eye(m, dtype=bool)[:, None, :, None]
     blocked = jnp.any(others & not_own, axis=(-1, -2))
@@ -100,11 +100,15 @@ def visible_points(
     dq = d.map(lambda a: a[:, :, None])
     own_sight = sight.map(lambda a: a[:, None])
     g = cross(dq, own_sight)  # (m, q, N + 1)
-    dg = cross(dq, samples.dx.map(lambda a: a[:, None]))
     offset = samples.t[None, None] - t_mid[:, :, None]
     near = jnp.abs(offset) <= 1e4 * jnp.finfo(offset.dtype).eps
     offset = jnp.where(near, 1.0, offset)
     r = jnp.where(near, cross(d, dx_mid)[:, :, None], g / offset)
-    dr = jnp.where(near, 0.0, (dg - r) / offset)
+
+    def slopes_at(dx, _):
+        dg = cross(dq, dx.map(lambda a: a[:, None]))
+        return jnp.where(near, 0.0, (dg - r) / offset)
+
+    dr = samples.at_nodes(slopes_at)
     own = _crosses_segment(r, dr, dot(dq, own_sight), reach[:, :, None], h)
     return facing & ~blocked & ~jnp.any(own, axis=-1)

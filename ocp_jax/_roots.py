@@ -84,34 +84,50 @@ def _slot_bounds(f0, f1, d0, d1, h, second):
     return lo, hi, f_lo, f_hi, turning
 
 
+def cell_ends(nodes):
+    """The values at the start and at the end of every grid cell from node values: one
+    array (N + 1) where they are continuous, or a pair (right limits, left limits) of
+    such arrays where they may jump at nodes (corners)."""
+    start, end = nodes if isinstance(nodes, tuple) else (nodes, nodes)
+    return start[..., :-1], end[..., 1:]
+
+
 def grid_brackets(
     t_nodes: Float[Array, " n1"],
-    values: Float[Array, "*batch lines n1"],
-    slopes: Float[Array, "*batch lines n1"],
+    values,
+    slopes,
     budget: int,
     keep: Bool[Array, "*batch lines n"] | None = None,
+    scale=None,
 ) -> Brackets:
     """Brackets of the roots of F on every line (a family of functions sharing a grid),
     packed over lines and cells into `budget` slots per batch element.
 
     **Arguments:**
     - `t_nodes`: the grid t_0 < ... < t_N.
-    - `values`, `slopes`: F and dF/dt at the nodes.
+    - `values`, `slopes`: F and dF/dt at the nodes, arrays (*batch, lines, N + 1), or
+      pairs of them (right and left limits, see `cell_ends`) where F or F' jump.
     - `budget`: R, the number of root slots.
     - `keep`: optional mask of the cells that may hold wanted roots.
+    - `scale`: optional magnitude of the terms of F at the nodes (like `values`): a
+      cell where |F| stays below 1e3 eps scale at both ends holds no resolvable root
+      (F vanishes identically up to rounding, e.g. a camera on the line of a polygon
+      edge), only rounding noise, and is skipped.
     """
     h = jnp.diff(t_nodes)
     cells = h.shape[0]
-    f0, f1 = values[..., :-1], values[..., 1:]
-    d0, d1 = slopes[..., :-1], slopes[..., 1:]
+    f0, f1 = cell_ends(values)
+    d0, d1 = cell_ends(slopes)
     h_cells = jnp.broadcast_to(h, f0.shape)
     first = _slot_bounds(f0, f1, d0, d1, h_cells, False)
     second = _slot_bounds(f0, f1, d0, d1, h_cells, True)
-    has_root = jnp.stack(
-        [(first[2] * first[3] < 0) | (f0 == 0), second[2] * second[3] < 0], -1
-    )
+    has_root = jnp.stack([(first[2] * first[3] < 0) | (f0 == 0), second[2] * second[3] < 0], -1)
     if keep is not None:
         has_root = has_root & keep[..., None]
+    if scale is not None:
+        noise = [1e3 * jnp.finfo(f0.dtype).eps * a for a in cell_ends(scale)]
+        resolved = (jnp.abs(f0) > noise[0]) | (jnp.abs(f1) > noise[1])
+        has_root = has_root & resolved[..., None]
     batch = has_root.shape[:-3]
     flat = has_root.reshape(batch + (-1,))
 

@@ -1,5 +1,6 @@
 """A scene: a set of closed curves (the objects), evaluated together."""
 
+import math
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -77,6 +78,32 @@ class Scene(eqx.Module):
         t = jnp.asarray(t, self.dtype)
         return self._map(lambda c, tt: c.components(tt), t)
 
+    def components_left(self, t: Float[Array, "m *shape"]) -> tuple[Vec, Vec, Vec]:
+        """Left limits of `components` (they differ at corners)."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map(lambda c, tt: c.components_left(tt), t)
+
+    @property
+    def has_corners(self) -> bool:
+        return any(c.corners().size for c in self.curves)
+
+    def corners(self) -> tuple[np.ndarray, np.ndarray]:
+        """Static (m, c) arrays: every curve's corner parameters (padded with 1.0, the end
+        of [0, 1)) and which entries are corners."""
+        corners = [c.corners() for c in self.curves]
+        width = max(1, max(len(c) for c in corners))
+        times = np.ones((len(corners), width))
+        real = np.zeros((len(corners), width), bool)
+        for i, c in enumerate(corners):
+            times[i, : len(c)] = c
+            real[i, : len(c)] = True
+        return times, real
+
+    def grid_alignment(self) -> int:
+        """The grid cell count must be a multiple of this (the least common multiple of
+        the curves' segment counts), so that every corner is a grid node."""
+        return math.lcm(*(max(1, len(c.corners())) for c in self.curves))
+
     def derivatives(
         self, t: Float[Array, "m *shape"]
     ) -> tuple[Float[Array, "m *shape 2"], Float[Array, "m *shape 2"], Float[Array, "m *shape 2"]]:
@@ -84,8 +111,10 @@ class Scene(eqx.Module):
         return tuple(v.stack() for v in self.components(t))
 
     def grid_cells(self) -> int:
-        """Grid cells per curve for root bracketing: the finest any curve asks for."""
-        return max(c.grid_cells() for c in self.curves)
+        """Grid cells per curve for root bracketing: the finest any curve asks for,
+        rounded up to a multiple of `grid_alignment`."""
+        align = self.grid_alignment()
+        return align * -(-max(c.grid_cells() for c in self.curves) // align)
 
     def breakpoints(self) -> Float[Array, "m b"]:
         """Each curve's breakpoints, padded with the seam 0 to a common length."""

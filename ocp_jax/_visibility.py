@@ -34,6 +34,7 @@ from ._events import (
     range_times,
     sample,
     shadow_times,
+    silhouette_corners,
     tangency_points,
     tangency_times,
     wedge_edges,
@@ -61,7 +62,7 @@ class VisibilityOptions(eqx.Module):
       Exceeding one raises an error naming the option.
     - `max_intervals`: per curve, the intervals between the events of all cameras that
       are integrated (the budgets above are per camera and rarely all used at once); None
-      (default) takes the panels plus half of the cameras' event budgets.
+      (default) takes the panels and corners plus half of the cameras' event budgets.
     - `quadrature`: Gauss-Legendre nodes per interval; intervals are also cut at each
       curve's panel `breakpoints`. 16 nodes give ~1e-12 relative error for cameras at
       a fair distance; a camera very close to a curve makes q = cos^2 nearly singular
@@ -157,6 +158,10 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     camera = Vec.of(pose.position)
     tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
     sources = tangency_points(scene, tangents)
+    pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
+    if scene.has_corners:
+        sources = join_sources(sources, silhouette_corners(scene, camera, samples))
+        pieces.append(jnp.asarray(scene.corners()[0], tangents.t.dtype))
     if pose.half_fov is not None:
         # Shadows of tangency points out of view fall where nothing is in view.
         frozen = jax.lax.stop_gradient(pose)
@@ -164,7 +169,7 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
         edges = pose.heading + jnp.stack([pose.half_fov, -pose.half_fov])
         sources = join_sources(sources, wedge_edges(camera, Vec(jnp.cos(edges), jnp.sin(edges))))
     shadows = shadow_times(scene, camera, samples, sources, options.max_shadows, iters)
-    pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t, shadows.t]
+    pieces.append(shadows.t)
     ranges = None
     if pose.range is not None:
         ranges = range_times(scene, camera, pose.range, samples, options.max_range_crossings, iters)
@@ -207,11 +212,29 @@ def _closest_points(scene, cameras: Vec, samples: Samples, sense):
         step = dot(sight, dx) / safe_divisor(dot(dx, dx) + dot(sight, ddx))
         return jnp.clip(t - step, t0 - h, t0 + h)
 
+    def outward(dx, offset):  # offset along the outward normal -J x' / |x'|
+        return -sense[:, None] * cross(dx, offset) / safe_divisor(norm(dx))
+
     t = jax.lax.fori_loop(0, 6, newton, t0)
     x, dx, _ = scene.components(jnp.mod(t, 1.0))
     offset = sub(camera, x)
-    outward = -sense[:, None] * cross(dx, offset) / safe_divisor(norm(dx))  # -J x' points out
-    return norm(offset), outward
+    distance, side = norm(offset), outward(dx, offset)
+    if scene.has_corners:
+        # The nearest point may be a corner (a grid node), where Newton cannot settle.
+        # There the camera is outside if it is outside either edge at a convex corner,
+        # both edges at a reflex one.
+        corner, right, _ = scene.components(jnp.where(t0 == 1.0, 0.0, t0))
+        _, left, _ = scene.components_left(jnp.where(t0 == 0.0, 1.0, t0))
+        offset = sub(camera, corner)
+        out_right, out_left = outward(right, offset), outward(left, offset)
+        convex = sense[:, None] * cross(left, right) >= 0
+        corner_side = jnp.where(
+            convex, jnp.maximum(out_right, out_left), jnp.minimum(out_right, out_left)
+        )
+        at_corner = norm(offset) <= distance
+        distance = jnp.where(at_corner, norm(offset), distance)
+        side = jnp.where(at_corner, corner_side, side)
+    return distance, side
 
 
 def _check_cameras(scene, cameras: Vec, samples: Samples, sense, quadrature: int):
@@ -271,8 +294,11 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         pieces.extend(crossovers.t)
     union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
-    panels = pieces[0].shape[1]
-    budget = options.max_intervals or panels + (union.shape[1] - panels + 1) // 2
+    # Every camera repeats the corners among its events (zero-length intervals).
+    fixed = pieces[0].shape[1] + len(partitions.events) * scene.corners()[0].shape[1] * (
+        scene.has_corners
+    )
+    budget = options.max_intervals or fixed + (union.shape[1] - fixed + 1) // 2
     used = jnp.sum(union < 1.0, axis=1)
     start, end = _intervals(union[:, :budget])
 

@@ -116,6 +116,8 @@ def to_reference(scene: ocp.Scene) -> list[dict]:
                  "axes": tuple(float(a) for a in np.asarray(c.semi_axes)),
                  "angle": float(c.angle)}
             )
+        elif isinstance(c, ocp.PiecewiseCurve):
+            out.append({"type": "piecewise", "segments": np.asarray(c.control_points, float)})
         else:  # pragma: no cover
             raise TypeError(type(c))
     return out

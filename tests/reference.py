@@ -108,7 +108,20 @@ def _n_pieces(curve):
     """Number of smooth pieces (uniform in t) of a curve."""
     if curve["type"] == "bspline":
         return int(np.asarray(curve["points"]).shape[0])
+    if curve["type"] == "piecewise":
+        return int(np.asarray(curve["segments"]).shape[0])
     return 1
+
+
+def _bernstein(s, deg, pts):
+    """sum_i C(deg, i) s^i (1 - s)^(deg - i) pts[..., i, :] for control points of
+    shape s.shape + (deg + 1, 2)."""
+    if deg < 0:
+        return np.zeros(s.shape + (2,))
+    i = np.arange(deg + 1)
+    coef = np.array([math.comb(deg, k) for k in i], dtype=float)
+    B = coef * s[..., None] ** i * (1.0 - s[..., None]) ** (deg - i)
+    return np.einsum("...i,...ij->...j", B, pts)
 
 
 def _de_boor(Q, w, p):
@@ -190,6 +203,20 @@ def _eval_local(curve, t, piece):
         if p >= 2:
             idx = (piece[..., None] - (p - 2) + np.arange(p - 1)) % n
             ddx = n * n * _de_boor(E[idx], w, p - 2)
+        else:
+            ddx = np.zeros_like(x)
+        return x, dx, ddx
+    if typ == "piecewise":
+        # Closed path of n Bezier segments of degree d, segment j on [j/n, (j+1)/n).
+        P = np.asarray(curve["segments"], dtype=float)
+        n, d = P.shape[0], P.shape[1] - 1
+        piece = np.broadcast_to(np.asarray(piece, dtype=np.int64), t.shape)
+        s = n * t - piece
+        Q = P[piece % n]
+        x = _bernstein(s, d, Q)
+        dx = n * d * _bernstein(s, d - 1, np.diff(Q, axis=-2))
+        if d >= 2:
+            ddx = n * n * d * (d - 1) * _bernstein(s, d - 2, np.diff(Q, n=2, axis=-2))
         else:
             ddx = np.zeros_like(x)
         return x, dx, ddx

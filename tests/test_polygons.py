@@ -1,0 +1,237 @@
+"""Piecewise curves with corners (polygons, Bezier pieces): closed forms, the exact
+outside reference VisiLibity1, the NumPy reference, finite differences, bad input."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.flatten_util import ravel_pytree
+
+import helpers as H
+import ocp_jax as ocp
+from reference import reference_visibility
+from visilibity_reference import visible_lengths
+
+rel = H.relative_error
+
+OBSTACLES = [
+    np.array([[0, 0], [3, 0], [3, 1], [1, 1], [1, 3], [0, 3]], float),  # L
+    np.array([[5, 0.5], [7, 1], [5.5, 2.5]], float),  # triangle
+    np.array([[1, 5], [4, 5], [4, 8], [3, 8], [3, 6], [2, 6], [2, 8], [1, 8]], float),  # U
+    np.array([[6, 4], [7, 5], [6, 6], [5, 5]], float),  # diamond
+]
+POLYGONS = ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.asarray(p)) for p in OBSTACLES])
+# Cameras in free space: outside, between the objects, in the mouth of the U.
+CAMERAS = [[-2.0, -1.0], [8.0, -1.0], [2.45, 7.4], [4.5, 3.3], [8.0, 7.0], [-1.0, 6.3], [4.2, 0.6]]
+ROUNDED = ocp.Scene(
+    [
+        ocp.PiecewiseCurve.rounded_rectangle(jnp.array([2.0, -3.0]), 3.0, 1.5, 0.4),
+        ocp.PiecewiseCurve.polygon(jnp.asarray(OBSTACLES[0])),
+        ocp.Circle(jnp.array([5.5, -2.0]), 0.7),
+    ]
+)
+ROUNDED_CAMERAS = [[-1.5, -4.5], [6.0, 1.3], [2.0, -0.8], [4.0, -4.5]]
+
+
+def _values(scene, cameras):
+    return ocp.visibility(scene, cameras, H.VL), ocp.visibility(scene, cameras, H.FS)
+
+
+def _values_and_grad(scene, cameras):
+    fs, grad = jax.value_and_grad(ocp.visibility, argnums=(0, 1))(scene, cameras, H.FS)
+    vl, grad_vl = jax.value_and_grad(ocp.visibility, argnums=(0, 1))(scene, cameras, H.VL)
+    return vl, fs, grad_vl, grad
+
+
+@functools.cache
+def _batched(kind):
+    fn = {"values": _values, "grad": _values_and_grad}[kind]
+    return jax.jit(jax.vmap(fn))
+
+
+def evaluate(kind, scenes, cameras):
+    """`kind` for a list of scenes (or one) and camera sets (n, k, 2)."""
+    cameras = np.asarray(cameras, float)
+    if isinstance(scenes, ocp.Scene):
+        scenes = [scenes] * len(cameras)
+    out = _batched(kind)(H.stack_trees(scenes), jnp.asarray(cameras))
+    return jax.tree.map(np.asarray, out)
+
+
+# ===========================================================================
+# closed forms
+# ===========================================================================
+def _square(cx, cy, side):
+    h = side / 2
+    return np.array([[cx - h, cy - h], [cx + h, cy - h], [cx + h, cy + h], [cx - h, cy + h]])
+
+
+def test_square_seen_from_a_point():
+    """Side 2 at the origin: from (5, 0) one face, q = 16 / (16 + y^2) on it; from
+    (5, 5) two faces; from (5, 0.7) still one face."""
+    scene = ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.asarray(_square(0, 0, 2)))])
+    vl, fs = evaluate("values", scene, [[[5.0, 0.0]], [[5.0, 5.0]], [[5.0, 0.7]]])
+    np.testing.assert_allclose(vl, [2.0, 4.0, 2.0], rtol=1e-14)
+
+    def face(camera_x, offset):  # int over y in [-1, 1] of cos^2 for a face at x = 1
+        a = camera_x - 1.0
+        lo, hi = -1.0 - offset, 1.0 - offset
+        return a * (np.arctan(hi / a) - np.arctan(lo / a))
+
+    np.testing.assert_allclose(fs, [face(5, 0), 2 * face(5, 5), face(5, 0.7)], rtol=1e-13)
+
+
+def test_shadows_of_corners_by_hand():
+    """Box A = [2,3]x[-.5,.5] in front of B = [6,7]x[-3,3]. From (0,0) the rays through
+    A's corners (2, +-.5) shadow |y| < 1.5 of B's face: A shows 1, B 3. From (0,2) the
+    rays through (2,-.5) and (3,.5) shadow y in [-5.5,-1] at x = 6: A shows 2, B 4.
+    From (0, 0.5), on the line of A's top edge (grazing), A shows its face only."""
+    a, b = np.array([[2, -0.5], [3, -0.5], [3, 0.5], [2, 0.5]]), _square(6.5, 0, 1)
+    b = np.array([[6, -3], [7, -3], [7, 3], [6, 3]], float)
+    scene = ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.asarray(p)) for p in (a, b)])
+    vl, _ = evaluate("values", scene, [[[0.0, 0.0]], [[0.0, 2.0]], [[0.0, 0.5]]])
+    # (0, 0.5): A's face 1; B's face y in [-3, 3] less the shadow of (2,-.5) below
+    # y = -2.5 (hidden), and of (3, .5)... the top edge's line y = .5 hides nothing.
+    np.testing.assert_allclose(vl[:2], [4.0, 6.0], rtol=1e-14)
+    assert abs(vl[2] - (1.0 + visible_lengths(None, [a, b], (0.0, 0.5))[1])) < 1e-12
+
+
+def test_triangle_closed_form():
+    scene = ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.array([[0.0, 0.0], [4.0, 0.0], [0.0, 3.0]]))])
+    vl, _ = evaluate("values", scene, [[[3.0, 3.0]], [[-1.0, -1.0]], [[5.0, -1.0]]])
+    # (5, -1) lies inside the half-plane of the hypotenuse: the bottom leg only.
+    np.testing.assert_allclose(vl, [5.0, 7.0, 4.0], rtol=1e-14)
+
+
+# ===========================================================================
+# the outside reference: VisiLibity1
+# ===========================================================================
+@functools.cache
+def polygon_values():
+    return evaluate("values", POLYGONS, [[c] for c in CAMERAS])
+
+
+@pytest.mark.parametrize("i", range(len(CAMERAS)))
+def test_polygons_match_visilibity(i):
+    vl, _ = polygon_values()
+    want = sum(visible_lengths(None, OBSTACLES, CAMERAS[i]))
+    assert abs(vl[i] / want - 1) < 1e-9, (vl[i], want)
+
+
+# ===========================================================================
+# the NumPy reference: foreshortening, pairs, Bezier pieces, view wedges
+# ===========================================================================
+@pytest.mark.parametrize("i", range(len(CAMERAS)))
+def test_polygons_foreshortened_match_reference(i):
+    _, fs = polygon_values()
+    want = reference_visibility(H.to_reference(POLYGONS), [CAMERAS[i]], "foreshortened")
+    assert abs(fs[i] / want - 1) < 1e-9
+
+
+@functools.cache
+def rounded_results():
+    pairs = [ROUNDED_CAMERAS[:2], ROUNDED_CAMERAS[2:]]
+    return pairs, evaluate("grad", ROUNDED, pairs)
+
+
+@pytest.mark.parametrize("i", range(2))
+def test_bezier_pieces_and_pairs_match_reference(i):
+    pairs, (vl, fs, _, _) = rounded_results()
+    curves = H.to_reference(ROUNDED)
+    assert abs(vl[i] / reference_visibility(curves, pairs[i], "visible_length") - 1) < 1e-9
+    assert abs(fs[i] / reference_visibility(curves, pairs[i], "foreshortened") - 1) < 1e-9
+
+
+def test_view_wedge_on_polygons_matches_reference():
+    camera = ocp.Camera(jnp.array([[4.5, 3.5], [-1.0, 6.0]]), jnp.array([2.0, -0.4]), 0.5, 6.0)
+    fs = ocp.visibility(POLYGONS, camera, H.FS)
+    poses = [
+        {"heading": 2.0, "half_fov": 0.5, "range": 6.0},
+        {"heading": -0.4, "half_fov": 0.5, "range": 6.0},
+    ]
+    want = reference_visibility(
+        H.to_reference(POLYGONS), [[4.5, 3.5], [-1.0, 6.0]], "foreshortened", poses=poses
+    )
+    assert abs(float(fs) / want - 1) < 1e-9
+
+
+# ===========================================================================
+# gradients: cameras and vertices / control points, vs finite differences
+# ===========================================================================
+@pytest.mark.parametrize("objective", ["visible_length", "foreshortened"])
+def test_gradients_match_finite_differences(objective):
+    pairs, (_, _, grad_vl, grad_fs) = rounded_results()
+    grad = H.unstack_tree(grad_vl if objective == "visible_length" else grad_fs, 0)
+    flat, unravel = ravel_pytree((ROUNDED, jnp.asarray(pairs[0])))
+    h = 1e-6
+    points = []
+    for j in range(flat.size):
+        for m in (1, -1):
+            p = np.array(flat)
+            p[j] += m * h
+            points.append(unravel(jnp.asarray(p)))
+    index = 0 if objective == "visible_length" else 1
+    values = []
+    for start in range(0, len(points), 32):
+        chunk = points[start : start + 32]
+        out = evaluate("values", [p[0] for p in chunk], [np.asarray(p[1]) for p in chunk])
+        values.append(out[index])
+    v = np.concatenate(values).reshape(flat.size, 2)
+    fd = (v[:, 0] - v[:, 1]) / (2 * h)
+    got = np.asarray(ravel_pytree(grad)[0])
+    assert rel(got, fd) < 1e-6
+    assert rel(got[-4:], fd[-4:]) < 1e-6 and np.linalg.norm(fd[-4:]) > 1e-2  # cameras
+    assert np.linalg.norm(fd[:-4]) > 1e-2  # the scene's control points matter
+
+
+# ===========================================================================
+# cameras and bad input
+# ===========================================================================
+def test_camera_at_a_sharp_corner_is_outside():
+    """Near a sharp vertex of the triangle, in the cone of its two normals, the camera
+    is outside (the nearest point is the corner, whose two edges decide)."""
+    tip = np.array([7.0, 1.0])
+    out = tip + 0.3 * np.array([1.0, 0.05])
+    vl, _ = evaluate("values", POLYGONS, [[out]])
+    want = sum(visible_lengths(None, OBSTACLES, out))
+    assert abs(vl[0] / want - 1) < 1e-9
+
+
+def test_camera_inside_a_polygon_raises():
+    with pytest.raises(Exception, match="inside an object"):
+        jax.block_until_ready(
+            _batched("values")(H.stack_trees([POLYGONS]), jnp.array([[[0.5, 2.0]]]))
+        )
+
+
+def test_open_or_degenerate_paths_raise():
+    with pytest.raises(ValueError, match="not closed"):
+        ocp.PiecewiseCurve.from_segments([[[0, 0], [1, 0]], [[1, 0], [1, 1]], [[1, 1], [0.1, 0]]])
+    with pytest.raises(ValueError, match="at least 3 control points"):
+        ocp.PiecewiseCurve(jnp.array([[[0, 0]], [[1, 0]]]))
+    with pytest.raises(ValueError, match="not regular"):
+        ocp.PiecewiseCurve.polygon(jnp.array([[0, 0], [1, 0], [1, 0], [0, 1]]))
+
+
+def test_grid_must_align_with_corners():
+    with pytest.raises(ValueError, match="multiple of 24"):
+        ocp.visibility(POLYGONS, jnp.array([CAMERAS[0]]), H.VL, ocp.VisibilityOptions(grid=50))
+
+
+def test_grid_alignment_of_mixed_scenes():
+    assert POLYGONS.grid_alignment() == 24 and POLYGONS.grid_cells() % 24 == 0
+    assert ROUNDED.grid_cells() % ROUNDED.grid_alignment() == 0
+
+
+def test_camera_on_the_line_of_an_edge():
+    """A camera exactly on the line of an edge (grazing it: measure zero, where Q jumps
+    by the edge's length) raises no budget error: the edge's event functions vanish
+    identically there and are skipped as rounding noise; Q is the limit from the
+    edge's back (the grazed edge unseen), as VisiLibity has it here."""
+    grazing = [2.5, 7.5]  # on the line x + y = 10 of the diamond's edge (5,5)-(6,4)
+    behind = [2.5 - 1e-7, 7.5 - 1e-7]
+    vl, _ = evaluate("values", POLYGONS, [[grazing], [behind]])
+    assert abs(vl[0] - vl[1]) < 1e-6
+    assert abs(vl[0] / sum(visible_lengths(None, OBSTACLES, grazing)) - 1) < 1e-9
