@@ -21,30 +21,52 @@ def _structure(curve: AbstractCurve):
 
 
 class Scene(eqx.Module):
-    """The objects x_1..x_m of a scene (Sec. 2.1), as a pytree of curves.
+    """The objects x_1..x_m of a scene (Sec. 2.1), as a pytree of curves, optionally
+    inside a room.
 
     Curves of the same type and shape are evaluated together (stacked and vmapped), so
     a scene of many similar objects compiles to one evaluation, not one per object.
 
     **Arguments:**
-    - `curves`: a sequence of curves (`BezierCurve`, `BSplineCurve`, `Circle`, ...).
+    - `curves`: a sequence of curves (`BezierCurve`, `BSplineCurve`, `Circle`,
+      `PiecewiseCurve`, ...): the objects, seen from outside.
+    - `room`: optional closed curve whose inside is the free space (the walls): it
+      occludes like any object, cameras must be inside it, and it is not itself part
+      of Q (only the objects are to be seen). It is stored as the last of `curves`.
     """
 
     curves: tuple[AbstractCurve, ...]
+    room: bool = eqx.field(static=True)
 
-    def __init__(self, curves: Sequence[AbstractCurve]):
+    def __init__(self, curves: Sequence[AbstractCurve], room: AbstractCurve | None = None):
         if isinstance(curves, AbstractCurve):
             curves = [curves]
         curves = tuple(curves)
         if not curves:
             raise ValueError("A Scene needs at least one curve.")
+        if room is not None:
+            curves = (*curves, room)
         for c in curves:
             if not isinstance(c, AbstractCurve):
                 raise TypeError(
                     f"Scene curves must be ocp_jax curves (BezierCurve, BSplineCurve, "
-                    f"Circle, Ellipse), got {type(c).__name__}."
+                    f"Circle, Ellipse, PiecewiseCurve), got {type(c).__name__}."
                 )
         self.curves = curves
+        self.room = room is not None
+
+    @property
+    def objects(self) -> tuple[AbstractCurve, ...]:
+        """The curves that are to be seen (all but the room)."""
+        return self.curves[:-1] if self.room else self.curves
+
+    def observed(self) -> np.ndarray:
+        """Static (m,) mask of the curves that count in Q (all but the room)."""
+        return np.arange(len(self.curves)) < len(self.objects)
+
+    def sides(self) -> np.ndarray:
+        """Static (m,) signs: +1 where the free space is outside a curve, -1 inside."""
+        return np.where(self.observed(), 1.0, -1.0)
 
     def __len__(self) -> int:
         return len(self.curves)

@@ -144,6 +144,12 @@ def _poses(cameras, dtype) -> Camera:
     return jax.tree.map(lambda a: a.astype(dtype), cameras)
 
 
+def _sense(scene: Scene, samples: Samples) -> Float[Array, " m"]:
+    """+1 where the free space lies to the left of x' (counter-clockwise objects,
+    clockwise rooms), -1 where it lies to the right."""
+    return orientation(samples) * jnp.asarray(scene.sides(), samples.t.dtype)
+
+
 def _as_input(cameras):
     return cameras if isinstance(cameras, Camera) else jnp.asarray(cameras)
 
@@ -250,7 +256,8 @@ def _check_cameras(scene, cameras: Vec, samples: Samples, sense, quadrature: int
     on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=0)
     inside = jnp.any(outward < 0, axis=0) & ~on_curve
     _, radius = bounding_discs(samples)
-    too_close = jnp.any(distance < (2.5 / quadrature) ** 2 * radius[:, None], axis=0) & ~on_curve
+    near = distance < (2.5 / quadrature) ** 2 * radius[:, None]
+    too_close = jnp.any(near & scene.observed()[:, None], axis=0) & ~on_curve
     finite = jnp.isfinite(cameras.x) & jnp.isfinite(cameras.y)
     return finite, inside, on_curve, too_close
 
@@ -263,7 +270,7 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
     poses = _poses(cameras, scene.dtype)
     cameras = Vec.of(poses.position)
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
-    sense = orientation(samples)
+    sense = _sense(scene, samples)
     partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
         scene, poses, samples, sense, options
     )
@@ -308,7 +315,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         jax.vmap(lambda ev, t: jnp.searchsorted(ev, t, side="right", method="compare_all") - 1),
         in_axes=(0, None),
     )(partitions.events, t_mid)  # (k, m, e)
-    seen = jnp.take_along_axis(partitions.visible, own, axis=-1)
+    seen = jnp.take_along_axis(partitions.visible, own, axis=-1) & scene.observed()[:, None]
 
     args = (scene, events.cameras, objective, seen)
     value = jnp.sum(gauss_legendre(_integrand, start, end, args, options.quadrature))
@@ -335,7 +342,8 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
         ),
         (
             jnp.any(inside),
-            "ocp_jax: a camera lies inside an object; cameras must be outside every curve.",
+            "ocp_jax: a camera lies inside an object (or outside the room); cameras must be "
+            "outside every object and inside the room.",
         ),
         (jnp.any(on_curve), "ocp_jax: a camera lies on a curve; move it off the object."),
         (
@@ -442,7 +450,7 @@ def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | Non
     Differentiable in the cameras (the gradient is the unit vector from the nearest point)."""
     samples = sample(jax.lax.stop_gradient(scene), grid or scene.grid_cells())
     distance, outward = _closest_points(
-        jax.lax.stop_gradient(scene), Vec.of(cameras), samples, orientation(samples)
+        jax.lax.stop_gradient(scene), Vec.of(cameras), samples, _sense(scene, samples)
     )
     return jnp.where(outward >= 0, distance, -distance).T
 

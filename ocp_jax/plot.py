@@ -5,12 +5,14 @@ Axes and never calls `show()`, so it works headless (Agg) and in notebooks alike
 Camera c is drawn in colour `CAMERA_COLOURS[c % 10]` (matplotlib's tab10).
 """
 
+import jax
 import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
 
 from ._baselines import _values_of_sets
+from ._camera import Camera
 from ._objectives import Foreshortened, as_local_objective
 from ._optimize import OptimizeResult
 from ._placement import AbstractBoundary, AbstractPlacement, Region
@@ -89,7 +91,8 @@ def plot_scene(
     their lines of sight, and shadow points (crosses) with the rays that reach them.
 
     **Arguments:**
-    - `scene`; `cameras`: positions (k, 2) or None; `placement`: drawn dashed if given.
+    - `scene`; `cameras`: positions (k, 2), a `Camera` (its view wedges are drawn
+      dashed) or None; `placement`: drawn dashed if given.
     - `events`: draw the occlusion events; `resolution`: points per curve.
     - `ax`: a matplotlib Axes (a new figure when None); `options`: the engine's options.
 
@@ -101,8 +104,10 @@ def plot_scene(
     if placement is not None:
         plot_placement(placement, ax)
     if cameras is not None:
-        cameras = np.atleast_2d(np.asarray(cameras, float))
-        seen = visible_intervals(scene, jnp.asarray(cameras), options)
+        poses = cameras if isinstance(cameras, Camera) else Camera(jnp.asarray(cameras, float))
+        poses = jax.tree.map(lambda a: np.atleast_1d(np.asarray(a)), poses)
+        seen = visible_intervals(scene, poses, options)
+        cameras = np.atleast_2d(poses.position)
         middle = 0.5 * (t[:-1] + t[1:])
         count = np.zeros((len(scene), resolution), int)
         for c, camera in enumerate(cameras):
@@ -116,6 +121,8 @@ def plot_scene(
                     LineCollection(_runs(points[i], mask), colors=[colour], linewidths=4, zorder=3)
                 )
             ax.plot(*camera, "o", color=colour, markersize=8, markeredgecolor="black", zorder=5)
+            if poses.half_fov is not None:
+                _draw_wedge(ax, points, jax.tree.map(lambda a: a[c], poses), colour)
             if events:
                 _draw_events(ax, scene, camera, seen, c, colour)
         for i in range(len(scene)):
@@ -126,6 +133,16 @@ def plot_scene(
     ax.set_aspect("equal")
     ax.autoscale_view()
     return ax
+
+
+def _draw_wedge(ax, points, pose: Camera, colour):
+    """The view wedge's edges, as far as the range (or the scene's extent) reaches."""
+    extent = np.ptp(np.concatenate(points), axis=0).max()
+    reach = float(pose.range) if pose.range is not None else extent
+    for side in (1.0, -1.0):
+        angle = float(pose.heading) + side * float(pose.half_fov)
+        end = pose.position + reach * np.array([np.cos(angle), np.sin(angle)])
+        ax.plot(*np.stack([pose.position, end]).T, "--", color=colour, linewidth=1, zorder=2)
 
 
 def _draw_events(ax, scene, camera, seen, c: int, colour):

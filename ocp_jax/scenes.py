@@ -7,20 +7,30 @@ do not fit together, so we fitted a crescent (a centre-line arc of radius 42 abo
 squares with a curve that is C2 at the seam (`BezierCurve.closed_c2`), and rounded the
 16 free points to one decimal. The cameras' placement set of the thesis, the boundary of
 the 100 x 80 rectangle centred at (0, 20), encloses it.
+
+`room()` is an L-shaped room (walls `ROOM_WALLS`, metres) with polygonal and rounded
+furniture; `room_cameras()` are three directional cameras (90-degree field of view, 9 m
+range) mounted on its walls, 5 cm in front of them (`ROOM_MOUNTS`, the walls moved in by
+5 cm, is where such cameras may go: `PolygonBoundary(ROOM_MOUNTS)`).
 """
 
 import jax.numpy as jnp
 import numpy as np
 
-from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse
+from ._camera import Camera
+from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse, PiecewiseCurve
 from ._scene import Scene
 
 __all__ = [
     "BANANA_FREE_POINTS",
     "BANANA_RECTANGLE",
+    "ROOM_MOUNTS",
+    "ROOM_WALLS",
     "banana",
     "blobs",
     "circle",
+    "room",
+    "room_cameras",
     "three_objects",
 ]
 
@@ -93,4 +103,34 @@ def three_objects() -> Scene:
             Circle(jnp.array([3.8, 1.6]), 0.5),
             Ellipse(jnp.array([-1.6, -0.6]), jnp.array([0.7, 0.35]), 0.4),
         ]
+    )
+
+
+ROOM_WALLS = ((0.0, 0.0), (10.0, 0.0), (10.0, 5.0), (6.0, 5.0), (6.0, 8.0), (0.0, 8.0))
+ROOM_MOUNTS = ((0.05, 0.05), (9.95, 0.05), (9.95, 4.95), (5.95, 4.95), (5.95, 7.95), (0.05, 7.95))
+
+
+def room() -> Scene:
+    """An L-shaped room with a table, an L-shaped sofa, a round table and a cabinet with
+    rounded corners (the walls occlude but are not themselves to be seen)."""
+    polygon = PiecewiseCurve.polygon
+    furniture = [
+        polygon(jnp.array([[2.0, 2.0], [4.0, 2.0], [4.0, 3.0], [2.0, 3.0]])),
+        polygon(
+            jnp.array([[6.5, 1.0], [9.0, 1.0], [9.0, 3.5], [8.2, 3.5], [8.2, 1.8], [6.5, 1.8]])
+        ),
+        Circle(jnp.array([2.5, 6.0]), 0.6),
+        PiecewiseCurve.rounded_rectangle(jnp.array([4.5, 7.3]), 2.0, 0.8, 0.2),
+    ]
+    return Scene(furniture, room=polygon(jnp.asarray(ROOM_WALLS)))
+
+
+def room_cameras() -> Camera:
+    """Three cameras on the walls of `room()`, looking into it: 90-degree field of view
+    (half_fov pi/4), 9 m range."""
+    return Camera(
+        jnp.array([[0.05, 4.0], [5.0, 0.05], [9.95, 2.5]]),
+        heading=jnp.array([0.0, 0.5 * np.pi, np.pi]),
+        half_fov=np.pi / 4,
+        range=9.0,
     )
