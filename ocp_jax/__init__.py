@@ -24,6 +24,7 @@ from ._optimize import OptimizeResult as OptimizeResult
 from ._optimize import optimize as optimize
 from ._placement import AbstractPlacement as AbstractPlacement
 from ._placement import Constraints as Constraints
+from ._placement import DirectionalPlacement as DirectionalPlacement
 from ._placement import EqualityConstraint as EqualityConstraint
 from ._placement import FreePlacement as FreePlacement
 from ._placement import PolygonBoundary as PolygonBoundary
@@ -33,6 +34,7 @@ from ._problem_file import PlacementProblem as PlacementProblem
 from ._problem_file import load_problem as load_problem
 from ._problem_file import problem_to_json as problem_to_json
 from ._scene import Scene as Scene
+from ._svg import load_svg as load_svg
 from ._visibility import VisibilityOptions as VisibilityOptions
 from ._visibility import VisibleIntervals as VisibleIntervals
 from ._visibility import visibility as visibility

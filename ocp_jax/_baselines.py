@@ -22,6 +22,7 @@ import numpy as np
 import scipy.optimize
 from jaxtyping import Array, Float, PRNGKeyArray
 
+from ._camera import Camera
 from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
 from ._optimize import OptimizeResult, _best, _problem_and_starts, _tolerance
 from ._placement import AbstractPlacement
@@ -34,10 +35,12 @@ __all__ = ["SearchResult", "exhaustive", "greedy", "slsqp"]
 class SearchResult(eqx.Module):
     """The outcome of a discrete search (`greedy`, `exhaustive`).
 
-    - `cameras` (k, 2), `value`: the best placement found and its Q;
+    - `cameras` (k, 2) (a `Camera` for a `DirectionalPlacement`), `value`: the best
+      placement found and its Q;
     - `num_evaluations`: evaluations of Q; `seconds`: wall time (compilation excluded
       where a compiled evaluator already existed);
-    - `candidates` (n, 2): the admissible candidate positions;
+    - `candidates` (n, 2): the admissible candidate positions (for poses (n, r) rows
+      [x, y, heading, half_fov, range], the last two where the cameras have them);
     - `stage_values`: greedy: Q over the candidates at each stage (k arrays of n; the
       thesis's Fig. 5.5); exhaustive: the best Q found after each chunk.
     """
@@ -50,46 +53,68 @@ class SearchResult(eqx.Module):
     stage_values: tuple[Array, ...]
 
 
-@eqx.filter_jit
-def _set_values(scene, objective, options, camera_sets):
-    """Q of every camera set (n, k, 2), -inf where undefined."""
+def _to_rows(cameras) -> tuple[np.ndarray, tuple[bool, bool] | None]:
+    """Cameras as rows of numbers, (k, 2) positions or (k, r) pose rows [x, y, heading,
+    half_fov?, range?], with the layout that `_from_rows` needs (None for positions)."""
+    if not isinstance(cameras, Camera):
+        return np.atleast_2d(np.asarray(cameras, float)), None
+    layout = (cameras.half_fov is not None, cameras.range is not None)
+    columns = [cameras.position, cameras.heading[..., None]]
+    columns += [a[..., None] for a in (cameras.half_fov, cameras.range) if a is not None]
+    return np.concatenate([np.asarray(c, float) for c in columns], -1), layout
 
-    def one(cameras):
-        q, valid = valid_visibility(scene, cameras, objective, options)
+
+def _from_rows(rows, layout):
+    """The inverse of `_to_rows`."""
+    if layout is None:
+        return rows
+    has_fov, has_range = layout
+    fov = rows[..., 3] if has_fov else None
+    reach = rows[..., 3 + has_fov] if has_range else None
+    return Camera(rows[..., :2], rows[..., 2], fov, reach)
+
+
+@eqx.filter_jit
+def _set_values(scene, objective, options, layout, camera_sets):
+    """Q of every camera set (rows (n, k, r), see `_to_rows`), -inf where undefined."""
+
+    def one(rows):
+        q, valid = valid_visibility(scene, _from_rows(rows, layout), objective, options)
         return jnp.where(valid, q, -jnp.inf)
 
     return jax.lax.map(one, camera_sets, batch_size=64)
 
 
-def _values_of_sets(scene, objective, options, camera_sets: np.ndarray, chunk: int):
-    """Q of many camera sets, `chunk` at a time (the last chunk padded)."""
+def _values_of_sets(scene, objective, options, camera_sets: np.ndarray, chunk: int, layout=None):
+    """Q of many camera sets (rows, see `_to_rows`), `chunk` at a time (the last chunk
+    padded)."""
     out = []
     for begin in range(0, len(camera_sets), chunk):
         part = camera_sets[begin : begin + chunk]
         pad = chunk - len(part)
         padded = np.concatenate([part, np.repeat(part[:1], pad, 0)]) if pad else part
-        out.append(
-            np.asarray(_set_values(scene, objective, options, jnp.asarray(padded)))[: len(part)]
-        )
+        values = _set_values(scene, objective, options, layout, jnp.asarray(padded))
+        out.append(np.asarray(values)[: len(part)])
     return np.concatenate(out)
 
 
-def _admissible_candidates(scene, placement: AbstractPlacement, resolution: int) -> np.ndarray:
-    """Positions of the placement's candidates that satisfy its constraints and are
-    outside every object."""
-    positions = placement.cameras(placement.candidates(resolution))
-    keep = np.asarray(placement.violations(positions, scene)) <= 1e-9
-    positions = np.asarray(positions)[keep]
-    if len(positions) == 0:
+def _admissible_candidates(scene, placement: AbstractPlacement, resolution: int):
+    """The placement's candidates that satisfy its constraints and are outside every
+    object, as rows (see `_to_rows`), and their layout."""
+    cameras = placement.cameras(placement.candidates(resolution))
+    keep = np.asarray(placement.violations(cameras, scene)) <= 1e-9
+    rows, layout = _to_rows(cameras)
+    rows = rows[keep]
+    if len(rows) == 0:
         raise ValueError(
             "ocp_jax: the placement has no admissible candidates at resolution "
             f"{resolution}; raise the resolution or loosen the placement."
         )
-    return positions
+    return rows, layout
 
 
-def _search_result(scene, objective, options, cameras, evaluations, seconds, candidates, stages):
-    cameras = jnp.asarray(cameras)
+def _search_result(scene, objective, options, rows, layout, evaluations, seconds, candidates, stages):
+    cameras = _from_rows(jnp.asarray(rows), layout)
     return SearchResult(
         cameras=cameras,
         value=visibility(scene, cameras, objective, options),
@@ -120,20 +145,20 @@ def greedy(
     **Returns:** a `SearchResult`.
     """
     objective = as_local_objective(objective)
-    candidates = _admissible_candidates(scene, placement, resolution)
+    candidates, layout = _admissible_candidates(scene, placement, resolution)
     clock = time.perf_counter()
-    chosen, stages = np.zeros((0, 2)), []
+    chosen, stages = np.zeros((0, candidates.shape[1])), []
     for _ in range(n_cameras):
         sets = np.concatenate(
             [np.broadcast_to(chosen, (len(candidates), *chosen.shape)), candidates[:, None]], 1
         )
-        values = _values_of_sets(scene, objective, options, sets, chunk)
+        values = _values_of_sets(scene, objective, options, sets, chunk, layout)
         stages.append(values)
         chosen = sets[int(np.argmax(values))]
     seconds = time.perf_counter() - clock
     evaluations = n_cameras * len(candidates)
     return _search_result(
-        scene, objective, options, chosen, evaluations, seconds, candidates, stages
+        scene, objective, options, chosen, layout, evaluations, seconds, candidates, stages
     )
 
 
@@ -154,7 +179,7 @@ def exhaustive(
     **Returns:** a `SearchResult`.
     """
     objective = as_local_objective(objective)
-    candidates = _admissible_candidates(scene, placement, resolution)
+    candidates, layout = _admissible_candidates(scene, placement, resolution)
     total = math.comb(len(candidates), n_cameras)
     if total > max_evaluations:
         raise ValueError(
@@ -166,13 +191,13 @@ def exhaustive(
     best_value, best_set, stages = -np.inf, None, []
     while block := list(itertools.islice(subsets, chunk)):
         sets = candidates[np.asarray(block)]
-        values = _values_of_sets(scene, objective, options, sets, chunk)
+        values = _values_of_sets(scene, objective, options, sets, chunk, layout)
         if values.max() > best_value:
             best_value, best_set = values.max(), sets[int(np.argmax(values))]
         stages.append(best_value)
     seconds = time.perf_counter() - clock
     return _search_result(
-        scene, objective, options, best_set, total, seconds, candidates, (np.array(stages),)
+        scene, objective, options, best_set, layout, total, seconds, candidates, (np.array(stages),)
     )
 
 

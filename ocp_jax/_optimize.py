@@ -180,7 +180,8 @@ class OptimizeResult(eqx.Module):
     """The outcome of a multi-start optimisation (`optimize`, `slsqp`).
 
     - `cameras` (k, 2), `value`: the best admissible placement and its Q (as
-      `visibility` computes it);
+      `visibility` computes it); a `Camera` (batched likewise) for a
+      `DirectionalPlacement`;
     - `start_cameras` (s, k, 2), `start_values` (s,): every start's final placement and
       Q (-inf where it ended inadmissible); `start_status`: "converged", "max_steps",
       "invalid start" or the solver's failure;
@@ -224,9 +225,10 @@ def _best(problem, params, status, num_steps, evaluations, seconds, history, pat
             f"{sorted(set(status))}. Try more starts, more steps or a looser placement."
         )
     best = int(np.argmax(np.asarray(start_values)))
+    chosen = jax.tree.map(lambda a: a[best], cameras)
     return OptimizeResult(
-        cameras=cameras[best],
-        value=visibility(scene, cameras[best], problem.objective, problem.options),
+        cameras=chosen,
+        value=visibility(scene, chosen, problem.objective, problem.options),
         start_cameras=cameras,
         start_values=start_values,
         start_status=status,

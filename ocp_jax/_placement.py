@@ -27,6 +27,7 @@ from ._curves import _is_concrete
 __all__ = [
     "AbstractPlacement",
     "Constraints",
+    "DirectionalPlacement",
     "EqualityConstraint",
     "FreePlacement",
     "PolygonBoundary",
@@ -481,3 +482,111 @@ class EqualityConstraint(AbstractPlacement):
         cameras = jnp.atleast_2d(jnp.asarray(cameras, float))
         worst = 0.0 if scene is None else jnp.max(jnp.abs(self._residual(cameras)))
         return jnp.full(cameras.shape[:1], worst, cameras.dtype)
+
+
+def _bounds(value, name: str) -> tuple[float, float] | None:
+    """(lower, upper) of a pose parameter: a number is fixed (lower == upper)."""
+    if value is None:
+        return None
+    low, high = (value, value) if np.ndim(value) == 0 else tuple(value)
+    low, high = float(low), float(high)
+    if not 0 < low <= high:
+        raise ValueError(f"DirectionalPlacement {name} must satisfy 0 < lower <= upper, got {value}.")
+    return low, high
+
+
+class DirectionalPlacement(AbstractPlacement):
+    """Directional cameras (`Camera` poses): positions on any placement, a free heading
+    each, and a half field of view and a range that are fixed or optimised within bounds.
+
+    The parameters of a camera are its position's parameters, then its heading (any
+    real value), then u_fov and u_range where those are optimised, mapped into their
+    bounds by lower + (upper - lower) (1 + sin u) / 2 (every u is admissible).
+
+    **Arguments:**
+    - `positions`: where the cameras may be (any placement: `PolygonBoundary` of a
+      room's walls, `Region`, ...).
+    - `half_fov`: a number (fixed) or (lower, upper) in (0, pi].
+    - `range`: None (unlimited), a number, or (lower, upper).
+    """
+
+    positions: AbstractPlacement
+    half_fov: tuple[float, float] = eqx.field(static=True)
+    range: tuple[float, float] | None = eqx.field(static=True)
+    position_params: int = eqx.field(static=True)
+
+    def __init__(self, positions: AbstractPlacement, half_fov, range=None):
+        if not isinstance(positions, AbstractPlacement) or isinstance(
+            positions, DirectionalPlacement
+        ):
+            raise TypeError("DirectionalPlacement positions must be a placement of positions.")
+        self.positions = positions
+        self.half_fov = _bounds(half_fov, "half_fov")
+        if self.half_fov[1] > np.pi:
+            raise ValueError(f"DirectionalPlacement half_fov must be <= pi, got {half_fov}.")
+        self.range = _bounds(range, "range")
+        self.position_params = int(positions.sample(jax.random.key(0), 1, 1).shape[-1])
+
+    def _free(self) -> list[tuple[float, float]]:
+        return [b for b in (self.half_fov, self.range) if b is not None and b[0] < b[1]]
+
+    def _pose_value(self, bounds, params, column):
+        if bounds is None:
+            return None, column
+        low, high = bounds
+        if low == high:
+            return jnp.full(params.shape[:-1], low, params.dtype), column
+        u = params[..., column]
+        return low + (high - low) * 0.5 * (1.0 + jnp.sin(u)), column + 1
+
+    def cameras(self, params):
+        from ._camera import Camera
+
+        p = self.position_params
+        fov, column = self._pose_value(self.half_fov, params, p + 1)
+        reach, _ = self._pose_value(self.range, params, column)
+        return Camera(self.positions.cameras(params[..., :p]), params[..., p], fov, reach)
+
+    def sample(self, key, n_cameras, n_starts):
+        """Positions from `positions`; headings within 90 degrees of the direction to
+        the middle of the placement set (inwards: a camera on a room's wall or on a
+        boundary around the objects faces them); free pose parameters uniform in their
+        bounds."""
+        k_position, k_heading, k_free = jax.random.split(key, 3)
+        position = self.positions.sample(k_position, n_cameras, n_starts)
+        middle = jnp.mean(self.positions.cameras(self.positions.candidates(8)), axis=0)
+        inward = middle[None, None] - self.positions.cameras(position)
+        shape = (n_starts, n_cameras, 1)
+        spread = jax.random.uniform(k_heading, shape, position.dtype, -0.5 * np.pi, 0.5 * np.pi)
+        heading = jnp.arctan2(inward[..., 1:], inward[..., :1]) + spread
+        free = jax.random.uniform(
+            k_free, shape[:2] + (len(self._free()),), position.dtype, -0.5 * np.pi, 0.5 * np.pi
+        )
+        return jnp.concatenate([position, heading, free], axis=-1)
+
+    def candidates(self, resolution):
+        """The position candidates, each with 16 headings (free pose parameters at the
+        middle of their bounds)."""
+        position = self.positions.candidates(resolution)
+        headings = jnp.arange(16, dtype=position.dtype) * (2.0 * np.pi / 16)
+        n = position.shape[0]
+        return jnp.concatenate(
+            [
+                jnp.repeat(position, 16, axis=0),
+                jnp.tile(headings, n)[:, None],
+                jnp.zeros((16 * n, len(self._free())), position.dtype),
+            ],
+            axis=1,
+        )
+
+    def has_constraints(self):
+        return self.positions.has_constraints()
+
+    def constraints(self, cameras, scene):
+        return self.positions.constraints(cameras.position, scene)
+
+    def distances(self, cameras):
+        return self.positions.distances(cameras.position)
+
+    def violations(self, cameras, scene=None):
+        return self.positions.violations(cameras.position, scene)

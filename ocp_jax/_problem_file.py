@@ -5,8 +5,11 @@
         {"type": "bezier", "control_points": [[x, y], ...]},       # closed: first == last
         {"type": "bspline", "control_points": [[x, y], ...], "degree": 3},
         {"type": "circle", "center": [x, y], "radius": r},
-        {"type": "ellipse", "center": [x, y], "semi_axes": [a, b], "angle": 0.0}
+        {"type": "ellipse", "center": [x, y], "semi_axes": [a, b], "angle": 0.0},
+        {"type": "polygon", "vertices": [[x, y], ...]},
+        {"type": "path", "points": [[[x, y], ...], ...]}         # PiecewiseCurve points
       ],
+      "room": {"type": "polygon", "vertices": [[x, y], ...]}    (optional: any curve type)
       "placement": {"type": "rectangle", "center": [x, y], "width": w, "height": h}
                  | {"type": "polygon", "corners": [[x, y], ...]}
                  | {"type": "region", "lower": [x, y], "upper": [x, y],
@@ -25,7 +28,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse
+from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse, PiecewiseCurve
 from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength
 from ._placement import AbstractPlacement, FreePlacement, PolygonBoundary, RectangleBoundary, Region
 from ._scene import Scene
@@ -38,6 +41,8 @@ CURVES = {
     "bspline": (BSplineCurve, ("control_points",), ("degree",)),
     "circle": (Circle, ("center", "radius"), ()),
     "ellipse": (Ellipse, ("center", "semi_axes"), ("angle",)),
+    "path": (PiecewiseCurve, ("points",), ()),
+    "polygon": (PiecewiseCurve.polygon, ("vertices",), ()),
 }
 PLACEMENTS = {
     "rectangle": (RectangleBoundary, ("center", "width", "height"), ()),
@@ -80,15 +85,16 @@ def problem_from_dict(data: Any) -> PlacementProblem:
     """A `PlacementProblem` from the JSON form's dictionary."""
     if not isinstance(data, dict):
         raise ValueError('A problem file must hold a JSON object with "curves" and "placement".')
-    unknown = sorted(set(data) - {"curves", "placement", "objective"})
+    unknown = sorted(set(data) - {"curves", "room", "placement", "objective"})
     if unknown:
         raise ValueError(
-            f"Unknown top-level keys {unknown}; expected curves, placement, objective."
+            f"Unknown top-level keys {unknown}; expected curves, room, placement, objective."
         )
     curves = data.get("curves")
     if not isinstance(curves, list) or not curves:
         raise ValueError('"curves" must be a non-empty list of curve objects.')
-    scene = Scene([_build(c, CURVES, f"curves[{i}]") for i, c in enumerate(curves)])
+    room = _build(data["room"], CURVES, "room") if "room" in data else None
+    scene = Scene([_build(c, CURVES, f"curves[{i}]") for i, c in enumerate(curves)], room=room)
     if "placement" not in data:
         raise ValueError('The problem needs a "placement" (where cameras may go).')
     placement = _build(data["placement"], PLACEMENTS, "placement")
@@ -135,9 +141,9 @@ def problem_to_json(scene: Scene, placement: AbstractPlacement, objective=None) 
         raise TypeError(
             f"{type(objective).__name__} has no JSON form (only {', '.join(OBJECTIVES)})."
         )
-    data = {
-        "curves": [_entry(c, CURVES) for c in scene.curves],
-        "placement": _entry(placement, PLACEMENTS),
-        "objective": names[type(objective)],
-    }
+    data = {"curves": [_entry(c, CURVES) for c in scene.objects]}
+    if scene.room:
+        data["room"] = _entry(scene.curves[-1], CURVES)
+    data["placement"] = _entry(placement, PLACEMENTS)
+    data["objective"] = names[type(objective)]
     return json.dumps(data, indent=1)

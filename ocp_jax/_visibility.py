@@ -315,7 +315,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         jax.vmap(lambda ev, t: jnp.searchsorted(ev, t, side="right", method="compare_all") - 1),
         in_axes=(0, None),
     )(partitions.events, t_mid)  # (k, m, e)
-    seen = jnp.take_along_axis(partitions.visible, own, axis=-1) & scene.observed()[:, None]
+    seen = jnp.take_along_axis(partitions.visible, own, axis=-1) & scene.observed()[None, :, None]
 
     args = (scene, events.cameras, objective, seen)
     value = jnp.sum(gauss_legendre(_integrand, start, end, args, options.quadrature))

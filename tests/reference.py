@@ -685,7 +685,7 @@ def reference_visible_intervals(curves, camera, n_grid: int = 4096):
     return res
 
 
-def _evaluate(curves, cameras, objective, n_grid, quad_tol, poses=None):
+def _evaluate(curves, cameras, objective, n_grid, quad_tol, poses=None, observed=None):
     _check_objective(objective)
     cams = np.atleast_2d(np.asarray(cameras, dtype=float))
     geo = _Geo(curves, n_grid)
@@ -694,6 +694,8 @@ def _evaluate(curves, cameras, objective, n_grid, quad_tol, poses=None):
     total, err = 0.0, 0.0
     ncam = cams.shape[0]
     for i, c in enumerate(geo.curves):
+        if observed is not None and not observed[i]:
+            continue  # a room's walls: they occlude but are not integrated
         b = np.unique(np.concatenate([geo.bounds[i]] + [parts[k][i][0] for k in range(ncam)]))
         tm = 0.5 * (b[:-1] + b[1:])
         seen = np.zeros((ncam, tm.size), dtype=bool)
@@ -776,14 +778,16 @@ def _split_at_kinks(curve, cams, a, b, piece, seen, m=128):
 
 
 def reference_visibility(curves, cameras, objective: str = "foreshortened",
-                         n_grid: int = 4096, quad_tol: float = 1e-14, poses=None) -> float:
+                         n_grid: int = 4096, quad_tol: float = 1e-14, poses=None,
+                         observed=None) -> float:
     """Reference value of Q (see module docstring).
 
     n_grid: grid points per curve used to *detect* roots (not an accuracy
     parameter); quad_tol: relative tolerance of the adaptive quadrature; poses: optional
     list (one per camera) of dicts with heading, half_fov and range (None: unlimited),
-    restricting each camera to its view wedge and range."""
-    return _evaluate(curves, cameras, objective, n_grid, quad_tol, poses)[0]
+    restricting each camera to its view wedge and range; observed: optional list of
+    bools, False for curves that occlude but are not integrated (a room's walls)."""
+    return _evaluate(curves, cameras, objective, n_grid, quad_tol, poses, observed)[0]
 
 
 def reference_visibility_with_error(curves, cameras, objective: str = "foreshortened",
