@@ -445,15 +445,20 @@ class PiecewiseCurve(AbstractCurve):
 
     @classmethod
     def polygon(cls, vertices: Float[ArrayLike, "n 2"]) -> "PiecewiseCurve":
-        """The closed polygon through `vertices` (n >= 3, not repeated at the end)."""
+        """The closed polygon through `vertices` (n >= 3, not repeated at the end), its
+        edges split as in `from_segments`."""
         vertices = _as_points(vertices, "PiecewiseCurve.polygon vertices", 3)
-        return cls(vertices[:, None])
+        return cls.from_segments(
+            [jnp.stack([v, w]) for v, w in zip(vertices, jnp.roll(vertices, -1, axis=0))]
+        )
 
     @classmethod
     def from_segments(cls, segments) -> "PiecewiseCurve":
         """From a list of Bezier segments, arrays (d_j + 1, 2) of any degrees d_j >= 1
         (a line is [start, end]), each ending where the next starts (checked); all are
-        raised to the highest degree (exactly)."""
+        raised to the highest degree, and the longest are split in half until their
+        number is a power of two (both exact: the same curve). Power-of-two counts keep
+        the scene's common grid, a multiple of every curve's segment count, small."""
         segments = [_as_points(seg, "PiecewiseCurve segment", 2) for seg in segments]
         if _is_concrete(*segments):
             ends = np.stack([np.asarray(seg[-1]) for seg in segments])
@@ -467,7 +472,8 @@ class PiecewiseCurve(AbstractCurve):
                     f"but segment {(j + 1) % len(segments)} starts at {starts[j].tolist()}."
                 )
         degree = max(seg.shape[0] - 1 for seg in segments)
-        return cls(jnp.stack([_elevate(seg, degree)[:-1] for seg in segments]))
+        segments = _to_power_of_two([_elevate(seg, degree) for seg in segments])
+        return cls(jnp.stack([seg[:-1] for seg in segments]))
 
     @classmethod
     def rounded_rectangle(
@@ -546,3 +552,27 @@ def _elevate(points: Array, degree: int) -> Array:
         inner = i * points[:-1] + (1.0 - i) * points[1:]
         points = jnp.concatenate([points[:1], inner, points[-1:]])
     return points
+
+
+def _halve(points: Array) -> tuple[Array, Array]:
+    """De Casteljau split of a Bezier segment at its middle (the same curve)."""
+    rows = [points]
+    while rows[-1].shape[0] > 1:
+        rows.append(0.5 * (rows[-1][:-1] + rows[-1][1:]))
+    return jnp.stack([r[0] for r in rows]), jnp.stack([r[-1] for r in rows[::-1]])
+
+
+def _to_power_of_two(segments: list[Array]) -> list[Array]:
+    """Split the longest segments in half until their number is a power of two, so that
+    the scene's common grid (a multiple of every curve's segment count) stays small."""
+    target = 1 << (len(segments) - 1).bit_length()
+    segments = list(segments)
+    concrete = _is_concrete(*segments)
+    for split in range(target - len(segments)):
+        if concrete:  # the longest control polygon
+            lengths = [np.linalg.norm(np.diff(np.asarray(s), axis=0), axis=1).sum() for s in segments]
+            j = int(np.argmax(lengths))
+        else:  # traced points: every other segment from the start
+            j = 2 * split
+        segments[j : j + 1] = _halve(segments[j])
+    return segments

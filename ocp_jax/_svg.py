@@ -52,26 +52,6 @@ def _segments(subpath, flip: float, name: str) -> list[np.ndarray]:
     return segments
 
 
-def _halve(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """De Casteljau split of a Bezier segment at its middle (the same curve)."""
-    rows = [points]
-    while len(rows[-1]) > 1:
-        rows.append(0.5 * (rows[-1][:-1] + rows[-1][1:]))
-    return np.array([r[0] for r in rows]), np.array([r[-1] for r in rows[::-1]])
-
-
-def _to_power_of_two(segments: list[np.ndarray]) -> list[np.ndarray]:
-    """Split the longest segments in half until their number is a power of two, so that
-    the scene's common grid (a multiple of every curve's segment count) stays small."""
-    target = 1 << (len(segments) - 1).bit_length()
-    segments = list(segments)
-    while len(segments) < target:
-        lengths = [np.linalg.norm(np.diff(s, axis=0), axis=1).sum() for s in segments]
-        j = int(np.argmax(lengths))
-        segments[j : j + 1] = _halve(segments[j])
-    return segments
-
-
 def load_svg(
     source: str | pathlib.Path, *, room: str | None = None, flip_y: bool = True
 ) -> Scene:
@@ -85,8 +65,7 @@ def load_svg(
       points down).
 
     **Returns:** a Scene with one `PiecewiseCurve` per closed subpath, in document
-    order (the room, if any, last). Each curve's segments are split in half (exactly)
-    until their number is a power of two, which keeps the common grid small.
+    order (the room, if any, last).
 
     Raises ValueError for an open path, an empty file, or a `room` id that is missing.
     """
@@ -105,7 +84,7 @@ def load_svg(
         for subpath in path.as_subpaths():
             if not any(not isinstance(s, svgelements.Move) for s in subpath):
                 continue
-            segments = _to_power_of_two(_segments(subpath, flip, name))
+            segments = _segments(subpath, flip, name)
             curve = PiecewiseCurve.from_segments([jnp.asarray(s) for s in segments])
             if room is not None and element.id == room:
                 if walls is not None:

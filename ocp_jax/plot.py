@@ -15,7 +15,7 @@ from ._baselines import _values_of_sets
 from ._camera import Camera
 from ._objectives import Foreshortened, as_local_objective
 from ._optimize import OptimizeResult
-from ._placement import AbstractBoundary, AbstractPlacement, Region
+from ._placement import AbstractBoundary, AbstractPlacement, DirectionalPlacement, Region
 from ._scene import Scene
 from ._visibility import VisibilityOptions, visible_intervals
 
@@ -53,11 +53,18 @@ def _runs(points: np.ndarray, mask: np.ndarray) -> list[np.ndarray]:
     return [points[a : b + 1] for a, b in zip(starts, ends)]
 
 
+def _positions(cameras) -> np.ndarray:
+    """Camera positions, from positions or a `Camera`."""
+    return np.asarray(cameras.position if isinstance(cameras, Camera) else cameras)
+
+
 def plot_placement(placement: AbstractPlacement, ax=None, **style):
     """The set where cameras may go: a boundary's walls, a region's box and polygon, or
     (other placements) its candidate points."""
     ax = _axes(ax)
     style = {"color": "0.3", "linestyle": "--", "linewidth": 1, **style}
+    if isinstance(placement, DirectionalPlacement):
+        placement = placement.positions
     if isinstance(placement, AbstractBoundary):
         corners = np.asarray(placement.vertices())
         ax.plot(*np.vstack([corners, corners[:1]]).T, **style)
@@ -184,6 +191,11 @@ def plot_landscape(
 
     **Returns:** the Axes.
     """
+    if isinstance(placement, DirectionalPlacement) or isinstance(cameras, Camera):
+        raise TypeError(
+            "plot_landscape draws Q over positions only: pass a placement of positions and "
+            "position cameras (k, 2)."
+        )
     ax = _axes(ax)
     objective = as_local_objective(objective)
     fixed = np.zeros((1, 2)) if cameras is None else np.atleast_2d(np.asarray(cameras, float))
@@ -245,7 +257,7 @@ def plot_optimization(
     fraction = np.linspace(0.0, 1.0, substeps, endpoint=False)[:, None, None, None, None]
     between = params[:-1][None] + fraction * np.diff(params, axis=0)[None]  # (sub, n-1, s, k, p)
     fine = np.concatenate([np.moveaxis(between, 0, 1).reshape(-1, *params.shape[1:]), params[-1:]])
-    paths = np.asarray(placement.cameras(jnp.asarray(fine)))  # (points, s, k, 2)
+    paths = _positions(placement.cameras(jnp.asarray(fine)))  # (points, s, k, 2)
     final = np.asarray(result.start_values)
     finite = np.isfinite(final)
     low, high = (final[finite].min(), final[finite].max()) if finite.any() else (0.0, 1.0)
@@ -257,7 +269,8 @@ def plot_optimization(
             ax.plot(*path.T, color=colours[start], linewidth=1, alpha=0.8)
             ax.plot(*path[0], "o", color=colours[start], markersize=3)
             ax.plot(*path[-1], "^", color=colours[start], markersize=5)
-    ax.plot(*np.asarray(result.cameras).T, "*", color="red", markersize=14, markeredgecolor="black")
+    best = _positions(result.cameras)
+    ax.plot(*best.T, "*", color="red", markersize=14, markeredgecolor="black")
     plt.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="final Q of the start")
     ax.set_aspect("equal")
     return ax

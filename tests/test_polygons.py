@@ -216,13 +216,19 @@ def test_open_or_degenerate_paths_raise():
 
 
 def test_grid_must_align_with_corners():
-    with pytest.raises(ValueError, match="multiple of 24"):
+    with pytest.raises(ValueError, match="multiple of 8"):
         ocp.visibility(POLYGONS, jnp.array([CAMERAS[0]]), H.VL, ocp.VisibilityOptions(grid=50))
 
 
-def test_grid_alignment_of_mixed_scenes():
-    assert POLYGONS.grid_alignment() == 24 and POLYGONS.grid_cells() % 24 == 0
+def test_segment_counts_are_powers_of_two():
+    """Polygons of 6, 3, 8 and 4 vertices get 8, 4, 8 and 4 segments (the longest edges
+    halved), so the common grid is a multiple of 8, not of lcm(6, 3, 8, 4) = 24; the
+    curves are unchanged (checked against VisiLibity above)."""
+    assert [c.segments for c in POLYGONS.curves] == [8, 4, 8, 4]
+    assert POLYGONS.grid_alignment() == 8 and POLYGONS.grid_cells() % 8 == 0
     assert ROUNDED.grid_cells() % ROUNDED.grid_alignment() == 0
+    traced = jax.jit(lambda v: ocp.PiecewiseCurve.polygon(v).points)(jnp.asarray(OBSTACLES[1]))
+    assert traced.shape == (4, 1, 2)
 
 
 def test_camera_on_the_line_of_an_edge():

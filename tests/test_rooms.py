@@ -233,3 +233,51 @@ def test_greedy_over_poses():
     d = 4.0 * math.sqrt(2.0)
     assert abs(float(search.value) - 2.0 * math.acos(1.0 / d)) < 1e-12
     assert float(result.value) >= float(search.value) - 1e-7
+
+
+def test_pictures_of_poses():
+    """plot_scene draws a Camera's wedge edges (dashed, in its colour, from the camera);
+    plot_optimization draws the paths of a DirectionalPlacement's positions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from ocp_jax import plot
+
+    result, _ = pose_results()
+    ax = plot.plot_scene(H.circle_scene(), result.cameras)
+    position = np.asarray(result.cameras.position[0])
+    dashed = [line for line in ax.lines if line.get_linestyle() == "--"]
+    assert len(dashed) == 2
+    for line in dashed:
+        start, end = np.asarray(line.get_xydata())
+        np.testing.assert_allclose(start, position)
+        angle = math.atan2(*(end - start)[::-1])
+        off = abs(math.remainder(angle - float(result.cameras.heading[0]), 2 * math.pi))
+        assert abs(off - 0.2) < 1e-9
+    placement = ocp.DirectionalPlacement(ocp.RectangleBoundary((0.0, 0.0), 8.0, 8.0), 0.2)
+    ax = plot.plot_optimization(result, H.circle_scene(), placement)
+    star = [line for line in ax.lines if line.get_marker() == "*"][0]
+    np.testing.assert_allclose(np.asarray(star.get_xydata())[0], position)
+    matplotlib.pyplot.close("all")
+
+
+def test_directional_placement_parameters():
+    """Position parameters, heading, then u_fov and u_range for optimised bounds, mapped
+    by lower + (upper - lower)(1 + sin u)/2; fixed values take no parameter."""
+    free = ocp.FreePlacement(jnp.array([-1.0, -1.0]), jnp.array([1.0, 1.0]))
+    placement = ocp.DirectionalPlacement(free, half_fov=(0.3, 0.8), range=(2.0, 5.0))
+    params = jnp.array([[0.5, -0.5, 1.0, 0.5 * math.pi, -0.5 * math.pi]])
+    cameras = placement.cameras(params)
+    np.testing.assert_allclose(cameras.position, [[0.5, -0.5]])
+    np.testing.assert_allclose(
+        [cameras.heading[0], cameras.half_fov[0], cameras.range[0]], [1.0, 0.8, 2.0]
+    )
+    assert placement.sample(jax.random.key(1), 3, 4).shape == (4, 3, 5)
+    assert placement.candidates(4).shape == (16 * 16, 5)
+    fixed = ocp.DirectionalPlacement(free, half_fov=0.5)
+    assert fixed.sample(jax.random.key(1), 2, 3).shape == (3, 2, 3)
+    assert fixed.cameras(jnp.zeros((2, 3))).range is None
+    with pytest.raises(ValueError, match="half_fov must be <= pi"):
+        ocp.DirectionalPlacement(free, half_fov=(0.5, 4.0))
+    with pytest.raises(ValueError, match="0 < lower <= upper"):
+        ocp.DirectionalPlacement(free, half_fov=0.5, range=(3.0, 2.0))
