@@ -10,6 +10,7 @@ Compiled functions are shared through module-level caches (helpers.batched and t
 `functools.cache` functions in test_visibility.py), which live for the whole session.
 """
 
+import gc
 import os
 import sys
 
@@ -43,3 +44,13 @@ def pytest_report_header(config):
 def reference_specs():
     """The NumPy reference's curve specs of every named test scene."""
     return {name: helpers.to_reference(scene) for name, scene in helpers.SCENES.items()}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+    """Drop every compiled program after each test module. A whole-suite process
+    otherwise holds hundreds of XLA executables (6.7 GB), and XLA crashed compiling the
+    last module (an abort, then a segfault, in two runs; each module passes alone)."""
+    yield
+    jax.clear_caches()
+    gc.collect()
