@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from ._curves import _is_concrete
+
 __all__ = ["Camera"]
 
 
@@ -69,8 +71,7 @@ class Camera(eqx.Module):
         self.range = None if range is None else _leaf(range, shape, dtype, "range")
 
     def __check_init__(self):
-        concrete = not any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(self))
-        if not concrete:
+        if not _is_concrete(*jax.tree.leaves(self)):
             return
         if self.half_fov is not None:
             fov = np.asarray(self.half_fov)

@@ -336,10 +336,7 @@ def crossover_times(
         return values[:, None], slopes[:, None]
 
     nodes = samples.at_nodes(values_and_slopes)
-    if samples.dx_end is None:
-        values, slopes = nodes
-    else:
-        values, slopes = (nodes[0][0], nodes[1][0]), (nodes[0][1], nodes[1][1])
+    values, slopes = nodes if samples.dx_end is None else zip(*nodes)
     brackets = grid_brackets(samples.t, values, slopes, budget)
     args = (scene, camera_a, camera_b, objective)
     t, valid = solve_roots(crossover_function, args, brackets, iterations, 1.0)

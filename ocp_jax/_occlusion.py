@@ -34,8 +34,7 @@ def in_view(camera, point: Vec) -> Bool[Array, "..."]:
     distance = jnp.sqrt(dot(d, d))
     seen = jnp.ones(distance.shape, bool)
     if camera.half_fov is not None:
-        u = Vec(jnp.cos(camera.heading), jnp.sin(camera.heading))
-        seen = seen & (dot(d, u) >= distance * jnp.cos(camera.half_fov))
+        seen = seen & (dot(d, Vec.of(camera.direction())) >= distance * jnp.cos(camera.half_fov))
     if camera.range is not None:
         seen = seen & (distance <= camera.range)
     return seen

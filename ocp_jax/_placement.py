@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
+from ._camera import Camera
 from ._curves import _is_concrete
 
 __all__ = [
@@ -540,8 +541,6 @@ class DirectionalPlacement(AbstractPlacement):
         return low + (high - low) * 0.5 * (1.0 + jnp.sin(u)), column + 1
 
     def cameras(self, params):
-        from ._camera import Camera
-
         p = self.position_params
         fov, column = self._pose_value(self.half_fov, params, p + 1)
         reach, _ = self._pose_value(self.range, params, column)

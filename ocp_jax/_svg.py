@@ -42,13 +42,6 @@ def _segments(subpath, flip: float, name: str) -> list[np.ndarray]:
     segments = [np.array(s) for s in out if np.ptp(np.array(s), axis=0).max() > 0]
     if not segments:
         raise ValueError(f"{name}: an empty path.")
-    first, last = segments[0][0], segments[-1][-1]
-    size = max(np.ptp(np.concatenate(segments), axis=0).max(), 1e-300)
-    if np.abs(first - last).max() > 1e-9 * size:
-        raise ValueError(
-            f"{name}: the path is open (it ends at {last.tolist()}, not at its start "
-            f"{first.tolist()}); only closed paths are objects. Close it with 'Z'."
-        )
     return segments
 
 
@@ -85,7 +78,12 @@ def load_svg(
             if not any(not isinstance(s, svgelements.Move) for s in subpath):
                 continue
             segments = _segments(subpath, flip, name)
-            curve = PiecewiseCurve.from_segments([jnp.asarray(s) for s in segments])
+            try:  # from_segments checks that the path is closed
+                curve = PiecewiseCurve.from_segments([jnp.asarray(s) for s in segments])
+            except ValueError as error:
+                raise ValueError(
+                    f"{name}: {error} Only closed paths are objects: close it with 'Z'."
+                ) from None
             if room is not None and element.id == room:
                 if walls is not None:
                     raise ValueError(f"The room {room!r} must be one closed path.")

@@ -162,6 +162,7 @@ def _intervals(events: Float[Array, "m e"]):
 def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPartition:
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
+    frozen = jax.lax.stop_gradient(pose)  # the visibility decisions carry no derivative
     tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
     sources = tangency_points(scene, tangents)
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
@@ -170,7 +171,6 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
         pieces.append(jnp.asarray(scene.corners()[0], tangents.t.dtype))
     if pose.half_fov is not None:
         # Shadows of tangency points out of view fall where nothing is in view.
-        frozen = jax.lax.stop_gradient(pose)
         sources = sources._replace(valid=sources.valid & in_view(frozen, sources.point))
         edges = pose.heading + jnp.stack([pose.half_fov, -pose.half_fov])
         sources = join_sources(sources, wedge_edges(camera, Vec(jnp.cos(edges), jnp.sin(edges))))
@@ -185,7 +185,6 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start + end)
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]))
-    frozen = jax.lax.stop_gradient(pose)
     visible = visible_points(Vec.of(frozen.position), samples, sense, t_mid, x_mid, dx_mid)
     return CameraPartition(events, visible & in_view(frozen, x_mid), tangents, shadows, ranges)
 

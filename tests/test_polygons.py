@@ -87,15 +87,15 @@ def test_shadows_of_corners_by_hand():
     """Box A = [2,3]x[-.5,.5] in front of B = [6,7]x[-3,3]. From (0,0) the rays through
     A's corners (2, +-.5) shadow |y| < 1.5 of B's face: A shows 1, B 3. From (0,2) the
     rays through (2,-.5) and (3,.5) shadow y in [-5.5,-1] at x = 6: A shows 2, B 4.
-    From (0, 0.5), on the line of A's top edge (grazing), A shows its face only."""
-    a, b = np.array([[2, -0.5], [3, -0.5], [3, 0.5], [2, 0.5]]), _square(6.5, 0, 1)
+    From (0, .5), on the line of A's top edge (grazing, unseen), A shows its face (1)
+    and shadows y in [-2.5, .5] of B's face (the ray through (2,-.5) and the top edge's
+    line): B shows 3, as VisiLibity has it."""
+    a = np.array([[2, -0.5], [3, -0.5], [3, 0.5], [2, 0.5]], float)
     b = np.array([[6, -3], [7, -3], [7, 3], [6, 3]], float)
     scene = ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.asarray(p)) for p in (a, b)])
     vl, _ = evaluate("values", scene, [[[0.0, 0.0]], [[0.0, 2.0]], [[0.0, 0.5]]])
-    # (0, 0.5): A's face 1; B's face y in [-3, 3] less the shadow of (2,-.5) below
-    # y = -2.5 (hidden), and of (3, .5)... the top edge's line y = .5 hides nothing.
-    np.testing.assert_allclose(vl[:2], [4.0, 6.0], rtol=1e-14)
-    assert abs(vl[2] - (1.0 + visible_lengths(None, [a, b], (0.0, 0.5))[1])) < 1e-12
+    np.testing.assert_allclose(vl, [4.0, 6.0, 4.0], rtol=1e-14)
+    assert abs(visible_lengths(None, [a, b], (0.0, 0.5))[1] - 3.0) < 1e-12
 
 
 def test_triangle_closed_form():

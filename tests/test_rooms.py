@@ -166,7 +166,7 @@ def test_svg_curves_match_reference():
 
 
 def test_svg_errors():
-    with pytest.raises(ValueError, match="open"):
+    with pytest.raises(ValueError, match="SVG path: PiecewiseCurve is not closed"):
         ocp.load_svg('<svg xmlns="http://www.w3.org/2000/svg"><path d="M 0 0 L 1 0 L 1 1"/></svg>')
     with pytest.raises(ValueError, match="No closed path with id 'walls'"):
         ocp.load_svg('<svg xmlns="http://www.w3.org/2000/svg"><rect width="1" height="1"/></svg>',
