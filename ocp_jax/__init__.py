@@ -17,8 +17,10 @@ from ._curves import Circle as Circle
 from ._curves import Ellipse as Ellipse
 from ._curves import PiecewiseCurve as PiecewiseCurve
 from ._objectives import AbstractLocalObjective as AbstractLocalObjective
+from ._objectives import Coverage as Coverage
 from ._objectives import Foreshortened as Foreshortened
 from ._objectives import LocalObjective as LocalObjective
+from ._objectives import Reconstruction as Reconstruction
 from ._objectives import VisibleLength as VisibleLength
 from ._optimize import OptimizeResult as OptimizeResult
 from ._optimize import optimize as optimize
@@ -34,6 +36,7 @@ from ._problem_file import PlacementProblem as PlacementProblem
 from ._problem_file import load_problem as load_problem
 from ._problem_file import problem_to_json as problem_to_json
 from ._scene import Scene as Scene
+from ._smoothed import Smoothed as Smoothed
 from ._svg import load_svg as load_svg
 from ._visibility import VisibilityOptions as VisibilityOptions
 from ._visibility import VisibleIntervals as VisibleIntervals

@@ -2,7 +2,8 @@
 
 - `greedy`: discretise the placement set (128 candidates per rectangle edge, as the
   thesis did) and place one camera at a time, each at the candidate that maximises Q with
-  the cameras already placed fixed.
+  the cameras already placed fixed (objectives of camera groups of l > 1 cameras start
+  from the best l-subset, since fewer cameras have no value).
 - `exhaustive`: every k-subset of the candidates (the best discrete answer), evaluated
   in fixed-size chunks so memory stays bounded.
 - `slsqp`: the thesis's own pipeline, scipy's SLSQP on the same parameters and
@@ -42,7 +43,8 @@ class SearchResult(eqx.Module):
     - `candidates` (n, 2): the admissible candidate positions (for poses (n, r) rows
       [x, y, heading, half_fov, range], the last two where the cameras have them);
     - `stage_values`: greedy: Q over the candidates at each stage (k arrays of n; the
-      thesis's Fig. 5.5); exhaustive: the best Q found after each chunk.
+      thesis's Fig. 5.5; for groups of l cameras the first holds the l-subsets);
+      exhaustive: the best Q found after each chunk.
     """
 
     cameras: Float[Array, "k 2"]
@@ -137,7 +139,9 @@ def greedy(
 ) -> SearchResult:
     """Greedy placement over a candidate grid (the thesis's baseline, Sec. 5.4): camera j
     goes to the candidate that maximises Q with cameras 1..j-1 fixed. k n evaluations for
-    n candidates.
+    n candidates. For an objective of groups of l > 1 cameras (`Reconstruction`,
+    `Coverage(m)`), fewer than l cameras have no value: the first l cameras are the best
+    l-subset of the candidates (binomial(n, l) evaluations), the rest one at a time.
 
     **Arguments:** as for `optimize`; `resolution`: candidates per edge (boundaries) or
     per axis (regions); `chunk`: camera sets per compiled batch.
@@ -145,18 +149,25 @@ def greedy(
     **Returns:** a `SearchResult`.
     """
     objective = as_local_objective(objective)
+    size = objective.group_size
+    if n_cameras < size:
+        raise ValueError(
+            f"ocp_jax.greedy: {type(objective).__name__} values groups of {size} cameras; "
+            f"n_cameras={n_cameras} is too few."
+        )
     candidates, layout = _admissible_candidates(scene, placement, resolution)
     clock = time.perf_counter()
-    chosen, stages = np.zeros((0, candidates.shape[1])), []
-    for _ in range(n_cameras):
+    sets = candidates[np.array(list(itertools.combinations(range(len(candidates)), size)))]
+    evaluations, stages = 0, []
+    for _ in range(n_cameras - size + 1):
+        values = _values_of_sets(scene, objective, options, sets, chunk, layout)
+        evaluations += len(sets)
+        stages.append(values)
+        chosen = sets[int(np.argmax(values))]
         sets = np.concatenate(
             [np.broadcast_to(chosen, (len(candidates), *chosen.shape)), candidates[:, None]], 1
         )
-        values = _values_of_sets(scene, objective, options, sets, chunk, layout)
-        stages.append(values)
-        chosen = sets[int(np.argmax(values))]
     seconds = time.perf_counter() - clock
-    evaluations = n_cameras * len(candidates)
     return _search_result(
         scene, objective, options, chosen, layout, evaluations, seconds, candidates, stages
     )

@@ -91,16 +91,19 @@ def optimize_file(args) -> None:
         f"{args.problem}: {len(problem.scene)} curve(s), {type(problem.placement).__name__}, "
         f"{type(problem.objective).__name__}"
     )
-    result = _run(
-        problem.scene,
-        problem.placement,
-        problem.objective,
-        args.cameras,
-        args.starts,
-        args.max_steps,
-        args.greedy,
-        True,
-    )
+    try:
+        result = _run(
+            problem.scene,
+            problem.placement,
+            problem.objective,
+            args.cameras,
+            args.starts,
+            args.max_steps,
+            args.greedy,
+            True,
+        )
+    except ValueError as error:  # e.g. fewer cameras than the objective's groups
+        sys.exit(f"ocp-jax: {error}")
     if args.picture:
         _picture(problem.scene, problem.placement, result, pathlib.Path(args.picture))
 

@@ -113,16 +113,17 @@ def shadow_function(s, args):
 
 
 def crossover_function(t, args):
-    """F(t) = q(x, x', C_a) - q(x, x', C_b) and its t-derivative (chain rule via jvp)."""
-    scene, camera_a, camera_b, objective = args
+    """F(t) = q(x, x', G_a) - q(x, x', G_b) for two camera groups (tuples of cameras) and
+    its t-derivative (chain rule via jvp)."""
+    scene, group_a, group_b, objective = args
     x, dx, ddx = scene.components(t)
 
     def difference(x, dx):
-        return objective.evaluate(x, dx, camera_a) - objective.evaluate(x, dx, camera_b)
+        return objective.evaluate(x, dx, *group_a) - objective.evaluate(x, dx, *group_b)
 
     value, slope = jax.jvp(difference, (x, dx), (dx, ddx))
-    scale = jnp.abs(objective.evaluate(x, dx, camera_a)) + jnp.abs(
-        objective.evaluate(x, dx, camera_b)
+    scale = jnp.abs(objective.evaluate(x, dx, *group_a)) + jnp.abs(
+        objective.evaluate(x, dx, *group_b)
     )
     return value, slope, scale
 
@@ -314,13 +315,20 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
 
 
 def crossover_times(
-    scene, camera_a: Vec, camera_b: Vec, objective, samples: Samples, budget: int, iterations: int
+    scene,
+    group_a: tuple[Vec, ...],
+    group_b: tuple[Vec, ...],
+    objective,
+    samples: Samples,
+    budget: int,
+    iterations: int,
 ) -> Roots:
+    """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15."""
     # Values on the grid from the sampled derivatives (no new curve evaluations).
-    frozen, ca, cb = jax.lax.stop_gradient((objective, camera_a, camera_b))
+    frozen, ga, gb = jax.lax.stop_gradient((objective, group_a, group_b))
 
     def difference(x, dx):
-        return frozen.evaluate(x, dx, ca) - frozen.evaluate(x, dx, cb)
+        return frozen.evaluate(x, dx, *ga) - frozen.evaluate(x, dx, *gb)
 
     def values_and_slopes(dx, ddx):
         values, slopes = jax.jvp(difference, (samples.x, dx), (dx, ddx))
@@ -328,8 +336,8 @@ def crossover_times(
         # q) either camera is the best one: count the node as just positive (by more
         # than the Hermite interpolant of the noise can dip), so that rounding noise
         # brackets no roots.
-        scale = jnp.abs(frozen.evaluate(samples.x, dx, ca)) + jnp.abs(
-            frozen.evaluate(samples.x, dx, cb)
+        scale = jnp.abs(frozen.evaluate(samples.x, dx, *ga)) + jnp.abs(
+            frozen.evaluate(samples.x, dx, *gb)
         )
         rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
         values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
@@ -338,6 +346,6 @@ def crossover_times(
     nodes = samples.at_nodes(values_and_slopes)
     values, slopes = nodes if samples.dx_end is None else zip(*nodes)
     brackets = grid_brackets(samples.t, values, slopes, budget)
-    args = (scene, camera_a, camera_b, objective)
+    args = (scene, group_a, group_b, objective)
     t, valid = solve_roots(crossover_function, args, brackets, iterations, 1.0)
     return Roots(t, valid, brackets.count)

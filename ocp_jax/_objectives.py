@@ -1,8 +1,10 @@
-"""Local visibility objectives q(x, x', C) (thesis Sec. 3.2).
+"""Local visibility objectives q(x, x', C_1, ..., C_l) (thesis Sec. 3.2, Eq. 3.10).
 
 A local objective says how well one point x(t) of an object, with tangent x'(t), is seen
-from a camera at C, regardless of occlusion. The global objective integrates it over arc
-length on the visible parts (Eq. 3.14), so q never includes the speed ||x'||.
+from a group of l cameras (l = `group_size`: 1 for most objectives, 2 for the
+reconstruction error of Sec. 3.2.3), regardless of occlusion. The global objective
+integrates, over arc length, the best group among those whose cameras all see the point
+(Eqs. 3.14, 3.15), so q never includes the speed ||x'||.
 
 Any JAX function `q(point, tangent, camera) -> scalar` (each argument of shape (2,)) is a
 valid local objective; wrap it in `LocalObjective` to give it a name, or pass it directly.
@@ -16,35 +18,44 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ._curves import _is_concrete
 from ._vec import Vec, cross, dot, sub
 
-__all__ = ["AbstractLocalObjective", "VisibleLength", "Foreshortened", "LocalObjective"]
+__all__ = [
+    "AbstractLocalObjective",
+    "Coverage",
+    "Foreshortened",
+    "LocalObjective",
+    "Reconstruction",
+    "VisibleLength",
+]
 
 
 class AbstractLocalObjective(eqx.Module):
-    """q(point, tangent, camera) for single points (arrays of shape (2,)).
+    """q(point, tangent, *cameras) for single points (arrays of shape (2,)), one camera
+    argument per member of a group of `group_size` cameras.
 
-    `is_constant` is True when q does not depend on the camera; then several cameras
-    never trade places as the best one and no crossover events are needed.
+    `is_constant` is True when q does not depend on the cameras; then two groups never
+    trade places as the best one and no crossover events are needed.
     """
 
     is_constant: ClassVar[bool] = False
+    group_size: ClassVar[int] = 1
 
     @abc.abstractmethod
     def __call__(
-        self, point: Float[Array, "2"], tangent: Float[Array, "2"], camera: Float[Array, "2"]
+        self, point: Float[Array, "2"], tangent: Float[Array, "2"], *cameras: Float[Array, "2"]
     ) -> Float[Array, ""]:
-        """How well `point` is seen from `camera`."""
+        """How well `point` is seen from `cameras` (`group_size` of them)."""
 
-    def evaluate(self, point: Vec, tangent: Vec, camera: Vec) -> Array:
+    def evaluate(self, point: Vec, tangent: Vec, *cameras: Vec) -> Array:
         """q on broadcastable `Vec`s of arrays (the engine's layout); vmaps `__call__`
         unless a subclass gives a direct formula."""
-        q = jnp.vectorize(self.__call__, signature="(2),(2),(2)->()")
-        shape = jnp.broadcast_shapes(point.x.shape, tangent.x.shape, camera.x.shape)
-        point, tangent, camera = (
-            v.map(lambda a: jnp.broadcast_to(a, shape)) for v in (point, tangent, camera)
-        )
-        return q(point.stack(), tangent.stack(), camera.stack())
+        signature = ",".join(["(2)"] * (2 + len(cameras))) + "->()"
+        q = jnp.vectorize(self.__call__, signature=signature)
+        vecs = (point, tangent, *cameras)
+        shape = jnp.broadcast_shapes(*(v.x.shape for v in vecs))
+        return q(*(v.map(lambda a: jnp.broadcast_to(a, shape)).stack() for v in vecs))
 
 
 class VisibleLength(AbstractLocalObjective):
@@ -56,8 +67,12 @@ class VisibleLength(AbstractLocalObjective):
         return jnp.ones((), jnp.result_type(point, camera))
 
     def evaluate(self, point, tangent, camera):
-        shape = jnp.broadcast_shapes(point.x.shape, camera.x.shape)
-        return jnp.ones(shape, jnp.result_type(point.x, camera.x))
+        return _ones(point, camera)
+
+
+def _ones(point: Vec, *cameras: Vec) -> Array:
+    shape = jnp.broadcast_shapes(point.x.shape, *(c.x.shape for c in cameras))
+    return jnp.ones(shape, jnp.result_type(point.x, *(c.x for c in cameras)))
 
 
 class Foreshortened(AbstractLocalObjective):
@@ -76,6 +91,70 @@ class Foreshortened(AbstractLocalObjective):
         sight = sub(point, camera)
         along = cross(tangent, sight)  # = n . (x - C) up to sign, n = J x'
         return along**2 / (dot(tangent, tangent) * dot(sight, sight))
+
+
+class Reconstruction(AbstractLocalObjective):
+    """How well two cameras locate a point by triangulation (Sec. 3.2.3; l = 2 in Eq. 3.15).
+
+    A camera with angular accuracy `delta` places the point in a wedge of angle `delta`
+    about its line of sight; two cameras at distances d1, d2 whose lines of sight meet at
+    angle theta place it in the intersection of two such wedges, a quadrilateral of area
+
+        A = delta^2 d1 d2 / sin(theta)     (to first order in delta; the thesis's Fig. 3.3).
+
+    The local objective is larger where that error region is smaller:
+
+        q = 1 / (1 + (A / area)^2),
+
+    1 for a perfectly located point, 1/2 where A equals `area`, 0 where the two lines of
+    sight are parallel (theta = 0 or pi). With c = |cross(x - C1, x - C2)| = d1 d2 sin(theta)
+    it is the rational function q = area^2 c^2 / (area^2 c^2 + delta^4 (d1 d2)^4): smooth
+    everywhere (it uses A^2, so no kink where sin(theta) = 0), symmetric in the cameras.
+    Q integrates, over every point, the best pair among the cameras that both see it. q
+    depends on `area` / delta^2 only: both are kept because both have a meaning.
+    """
+
+    area: float
+    delta: float = 0.01
+    group_size: ClassVar[int] = 2
+
+    def __check_init__(self):
+        for name in ("area", "delta"):
+            value = getattr(self, name)
+            if _is_concrete(value) and not float(value) > 0:
+                raise ValueError(f"Reconstruction.{name} must be positive, got {value!r}.")
+
+    def __call__(self, point, tangent, camera_a, camera_b):
+        return self.evaluate(Vec.of(point), Vec.of(tangent), Vec.of(camera_a), Vec.of(camera_b))
+
+    def evaluate(self, point, tangent, camera_a, camera_b):
+        sight_a, sight_b = sub(point, camera_a), sub(point, camera_b)
+        spread = self.area * cross(sight_a, sight_b)  # area d1 d2 sin(theta)
+        product = dot(sight_a, sight_a) * dot(sight_b, sight_b)  # (d1 d2)^2
+        return spread**2 / (spread**2 + self.delta**4 * product**2)
+
+
+class Coverage(AbstractLocalObjective):
+    """q = 1 on the points that at least `m` cameras see together (l = m in Eq. 3.15): Q
+    is the length of the objects seen by m or more cameras (Sec. 3.2, "features viewed by
+    more than one camera", the coverage needed for reconstruction)."""
+
+    m: int = eqx.field(static=True, default=2)
+    is_constant: ClassVar[bool] = True
+
+    def __check_init__(self):
+        if not isinstance(self.m, int) or self.m < 1:
+            raise ValueError(f"Coverage.m must be a positive int, got {self.m!r}.")
+
+    @property
+    def group_size(self) -> int:  # pyright: ignore[reportIncompatibleVariableOverride]
+        return self.m
+
+    def __call__(self, point, tangent, *cameras):
+        return jnp.ones((), jnp.result_type(point, *cameras))
+
+    def evaluate(self, point, tangent, *cameras):
+        return _ones(point, *cameras)
 
 
 class LocalObjective(AbstractLocalObjective):

@@ -34,7 +34,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, valid_visibility, visibility
+from ._visibility import VisibilityOptions, _groups, valid_visibility, visibility
 
 __all__ = ["OptimizeResult", "optimize"]
 
@@ -263,6 +263,7 @@ def _problem_and_starts(
             f"starts must have shape (n_starts, n_cameras={n_cameras}, p), got {starts.shape}."
         )
     problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
+    _groups(problem.objective, n_cameras)  # enough cameras for the objective's groups
     return problem, starts
 
 

@@ -16,6 +16,10 @@
                     "polygon": [[x, y], ...] (optional), "clearance": 0.0 (optional)}
                  | {"type": "free", "lower": [x, y], "upper": [x, y]},
       "objective": "foreshortened" | "visible_length"      (optional, default foreshortened)
+                 | {"type": "reconstruction", "area": a, "delta": 0.01 (optional)}
+                 | {"type": "coverage", "m": 2}
+                 | {"type": "smoothed", "objective": <an objective>, "width": w,
+                    "delta": d (optional), "nodes": 128 (optional)}
     }
 
 Keys are the constructors' arguments. `load_problem` says which entry is wrong and why;
@@ -29,9 +33,16 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse, PiecewiseCurve
-from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength
+from ._objectives import (
+    AbstractLocalObjective,
+    Coverage,
+    Foreshortened,
+    Reconstruction,
+    VisibleLength,
+)
 from ._placement import AbstractPlacement, FreePlacement, PolygonBoundary, RectangleBoundary, Region
 from ._scene import Scene
+from ._smoothed import Smoothed
 
 __all__ = ["PlacementProblem", "load_problem", "problem_to_json"]
 
@@ -50,7 +61,14 @@ PLACEMENTS = {
     "region": (Region, ("lower", "upper"), ("polygon", "clearance")),
     "free": (FreePlacement, ("lower", "upper"), ()),
 }
-OBJECTIVES = {"foreshortened": Foreshortened, "visible_length": VisibleLength}
+OBJECTIVES = {
+    "foreshortened": (Foreshortened, (), ()),
+    "visible_length": (VisibleLength, (), ()),
+    "reconstruction": (Reconstruction, ("area",), ("delta",)),
+    "coverage": (Coverage, (), ("m",)),
+    "smoothed": (Smoothed, ("objective", "width"), ("delta", "nodes")),
+}
+INTEGER_FIELDS = ("degree", "m", "nodes")
 
 
 class PlacementProblem(NamedTuple):
@@ -74,8 +92,13 @@ def _build(entry: Any, kinds: dict, where: str):
             f"{list(required)} and optionally {list(optional)}."
         )
     fields = {k: v for k, v in entry.items() if k != "type"}
+    if "objective" in fields:
+        fields["objective"] = _objective(fields["objective"], f"{where}.objective")
     try:
-        arrays = {k: v if k == "degree" else np.asarray(v, float) for k, v in fields.items()}
+        arrays = {
+            k: v if k in (*INTEGER_FIELDS, "objective") else np.asarray(v, float)
+            for k, v in fields.items()
+        }
         return cls(**arrays)
     except (ValueError, TypeError) as error:
         raise ValueError(f"{where} ({kind}): {error}") from None
@@ -98,10 +121,13 @@ def problem_from_dict(data: Any) -> PlacementProblem:
     if "placement" not in data:
         raise ValueError('The problem needs a "placement" (where cameras may go).')
     placement = _build(data["placement"], PLACEMENTS, "placement")
-    name = data.get("objective", "foreshortened")
-    if name not in OBJECTIVES:
-        raise ValueError(f"objective: unknown {name!r}; expected one of {', '.join(OBJECTIVES)}.")
-    return PlacementProblem(scene, placement, OBJECTIVES[name]())
+    objective = _objective(data.get("objective", "foreshortened"), "objective")
+    return PlacementProblem(scene, placement, objective)
+
+
+def _objective(entry: Any, where: str) -> AbstractLocalObjective:
+    """An objective from its JSON form (a bare name for one without parameters)."""
+    return _build({"type": entry} if isinstance(entry, str) else entry, OBJECTIVES, where)
 
 
 def load_problem(path: str | pathlib.Path) -> PlacementProblem:
@@ -127,7 +153,9 @@ def _entry(item, kinds: dict) -> dict:
             out = {"type": kind}
             for name in (*required, *optional):
                 value = getattr(item, name)
-                if value is not None:
+                if isinstance(value, AbstractLocalObjective):
+                    out[name] = _entry(value, kinds)
+                elif value is not None:
                     out[name] = value if isinstance(value, int) else np.asarray(value).tolist()
             return out
     raise TypeError(f"{type(item).__name__} has no JSON form.")
@@ -136,14 +164,10 @@ def _entry(item, kinds: dict) -> dict:
 def problem_to_json(scene: Scene, placement: AbstractPlacement, objective=None) -> str:
     """The JSON form of a problem (the inverse of `load_problem`)."""
     objective = objective if objective is not None else Foreshortened()
-    names = {cls: name for name, cls in OBJECTIVES.items()}
-    if type(objective) not in names:
-        raise TypeError(
-            f"{type(objective).__name__} has no JSON form (only {', '.join(OBJECTIVES)})."
-        )
     data = {"curves": [_entry(c, CURVES) for c in scene.objects]}
     if scene.room:
         data["room"] = _entry(scene.curves[-1], CURVES)
     data["placement"] = _entry(placement, PLACEMENTS)
-    data["objective"] = names[type(objective)]
+    entry = _entry(objective, OBJECTIVES)
+    data["objective"] = entry["type"] if len(entry) == 1 else entry
     return json.dumps(data, indent=1)

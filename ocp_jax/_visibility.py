@@ -1,12 +1,14 @@
-"""The global visibility objective Q (Eq. 3.15 with l = 1) and its exact gradient.
+"""The global visibility objective Q (Eq. 3.15) and its exact gradient.
 
-For cameras C_1..C_k and curves x_1..x_m,
+For cameras C_1..C_k, curves x_1..x_m and a local objective of groups of l cameras
+(l = 1 for most objectives, 2 for `Reconstruction`),
 
-    Q = sum_i int_0^1 max_c [chi_i(t, C_c) q(x_i(t), x_i'(t), C_c)] ||x_i'(t)|| dt.
+    Q = sum_i int_0^1 max_G [chi_i(t, G) q(x_i(t), x_i'(t), G)] ||x_i'(t)|| dt,
 
-The computation (Sec. 5.2): the events of every camera (tangency and shadow times, the
-curves' breakpoints, and crossovers of the cameras' q) cut each curve into intervals on
-which the integrand is smooth. The continuous viewability matrix V (Eq. 5.35) says, per
+the max over the l-subsets G of the cameras, chi_i(t, G) = 1 where every camera of G sees
+x_i(t). The computation (Sec. 5.2): the events of every camera (tangency and shadow times,
+the curves' breakpoints, and crossovers of the groups' q) cut each curve into intervals
+on which the integrand is smooth. The continuous viewability matrix V (Eq. 5.35) says, per
 interval and camera, whether the camera sees it: one test per interval of each camera's
 own partition. Gauss-Legendre quadrature on every interval then gives Q; since the
 interval ends are differentiable functions of the cameras and the scene (implicit-function
@@ -44,6 +46,7 @@ from ._occlusion import in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
 from ._roots import safe_divisor
 from ._scene import Scene
+from ._smoothed import Smoothed, smoothed_value
 from ._vec import Vec, cross, dot, norm, sub
 
 __all__ = ["VisibilityOptions", "VisibleIntervals", "visibility", "visible_intervals"]
@@ -58,7 +61,8 @@ class VisibilityOptions(eqx.Module):
       (Hermite split), but features much smaller than a cell need a finer grid.
     - `max_tangents`, `max_shadows` (shadows of tangency points and the crossings of a
       view wedge's edges), `max_range_crossings` (of a camera's range circle): root
-      budgets per curve and camera; `max_crossovers`: per curve and pair of cameras.
+      budgets per curve and camera; `max_crossovers`: per curve and pair of camera
+      groups (of cameras, or of camera pairs for `Reconstruction`).
       Exceeding one raises an error naming the option.
     - `max_intervals`: per curve, the intervals between the events of all cameras that
       are integrated (the budgets above are per camera and rarely all used at once); None
@@ -115,7 +119,8 @@ class Events(NamedTuple):
     """Every camera's partition of every curve, and what the checks and Q need with it."""
 
     partitions: CameraPartition  # batched over the cameras
-    crossovers: Roots | None  # batched over the pairs of cameras
+    groups: np.ndarray  # (G, l) indices of the cameras of each group
+    crossovers: Roots | None  # batched over the pairs of groups
     samples: Samples
     sense: Float[Array, " m"]
     cameras: Vec  # the positions
@@ -189,16 +194,32 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     return CameraPartition(events, visible & in_view(frozen, x_mid), tangents, shadows, ranges)
 
 
+def _groups(objective: AbstractLocalObjective, k: int) -> np.ndarray:
+    """The camera groups of Eq. 3.15: every l-subset of the k cameras, (G, l) indices."""
+    size = objective.group_size
+    if k < size:
+        raise ValueError(
+            f"ocp_jax: {type(objective).__name__} values groups of {size} cameras; pass at "
+            f"least {size} cameras, got {k}."
+        )
+    return np.array(list(itertools.combinations(range(k), size)))
+
+
+def _group_cameras(cameras: Vec, groups: np.ndarray) -> tuple[Vec, ...]:
+    """The positions of the groups' members: one `Vec` of shape (G,) per member."""
+    return tuple(cameras.map(lambda a: a[groups[:, j]]) for j in range(groups.shape[1]))
+
+
 def _integrand(t, args):
-    """max over the cameras that see the interval of q(x(t), x'(t), C) ||x'(t)||, for t of
-    shape (m, e, g) (the intervals' visibility `seen` has shape (k, m, e))."""
-    scene, cameras, objective, seen = args
+    """max over the camera groups that see the interval of q(x(t), x'(t), G) ||x'(t)||,
+    for t of shape (m, e, g) (the groups' visibility `seen` has shape (G, m, e))."""
+    scene, group, objective, seen = args
     x, dx = materialize(scene.components(t)[:2])
     local = objective.evaluate(
         x.map(lambda a: a[None]),
         dx.map(lambda a: a[None]),
-        cameras.map(lambda a: a[:, None, None, None]),
-    )  # (k, m, e, g)
+        *(c.map(lambda a: a[:, None, None, None]) for c in group),
+    )  # (G, m, e, g)
     return jnp.max(jnp.where(seen[..., None], local, 0.0), axis=0) * norm(dx)
 
 
@@ -273,22 +294,22 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
     partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
         scene, poses, samples, sense, options
     )
+    groups = _groups(objective, cameras.x.shape[0])
     crossovers = None
-    k = cameras.x.shape[0]
-    if k > 1 and not objective.is_constant:
-        pairs = np.array(list(itertools.combinations(range(k), 2)))
+    if len(groups) > 1 and not objective.is_constant:
+        pairs = np.array(list(itertools.combinations(range(len(groups)), 2)))
         crossovers = jax.vmap(
             crossover_times, in_axes=(None, 0, 0, None, None, None, None)
         )(
             scene,
-            cameras.map(lambda a: a[pairs[:, 0]]),
-            cameras.map(lambda a: a[pairs[:, 1]]),
+            _group_cameras(cameras, groups[pairs[:, 0]]),
+            _group_cameras(cameras, groups[pairs[:, 1]]),
             objective,
             samples,
             options.max_crossovers,
             options.newton_iterations,
         )
-    return Events(partitions, crossovers, samples, sense, cameras, poses)
+    return Events(partitions, groups, crossovers, samples, sense, cameras, poses)
 
 
 def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
@@ -315,24 +336,21 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         in_axes=(0, None),
     )(partitions.events, t_mid)  # (k, m, e)
     seen = jnp.take_along_axis(partitions.visible, own, axis=-1) & scene.observed()[None, :, None]
+    seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 
-    args = (scene, events.cameras, objective, seen)
+    args = (scene, _group_cameras(events.cameras, events.groups), objective, seen_by_group)
     value = jnp.sum(gauss_legendre(_integrand, start, end, args, options.quadrature))
     return value, (used, budget)
 
 
-def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):
-    """Every check on the input and the budgets: a stacked array of failure flags and the
-    message of each (`camera_dependent`: whether q depends on the camera, see
-    `_check_cameras`; `intervals`: the union intervals used and their budget, where Q was
-    integrated)."""
-    partitions, crossovers, samples = events.partitions, events.crossovers, events.samples
-    poses = events.poses
+def _input_failures(scene, poses: Camera, samples, sense, quadrature: int, camera_dependent):
+    """The checks on the cameras and the scene: a list of (failure flag, message)
+    (`camera_dependent`: whether q depends on the camera, see `_check_cameras`)."""
     pose_angles = [a for a in (poses.heading, poses.half_fov, poses.range) if a is not None]
     finite, inside, on_curve, too_close = _check_cameras(
-        *jax.lax.stop_gradient((scene, events.cameras)), samples, events.sense, options.quadrature
+        *jax.lax.stop_gradient((scene, Vec.of(poses.position))), samples, sense, quadrature
     )
-    failures = [
+    return [
         (~jnp.all(finite), "ocp_jax: a camera position is NaN or inf; pass finite coordinates."),
         (
             ~jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in pose_angles])),
@@ -347,9 +365,9 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
         (jnp.any(on_curve), "ocp_jax: a camera lies on a curve; move it off the object."),
         (
             jnp.any(too_close) & camera_dependent,
-            f"ocp_jax: a camera is closer to a curve than {(2.5 / options.quadrature) ** 2:.2g} "
+            f"ocp_jax: a camera is closer to a curve than {(2.5 / quadrature) ** 2:.2g} "
             "of its radius, where the local objective is too nearly singular for "
-            f"{options.quadrature} quadrature nodes: move it away or pass "
+            f"{quadrature} quadrature nodes: move it away or pass "
             "options=ocp.VisibilityOptions(quadrature=...) with more nodes.",
         ),
         (
@@ -357,6 +375,16 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
             "ocp_jax: the scene contains NaN or inf control points.",
         ),
     ]
+
+
+def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):
+    """Every check on the input and the budgets: a stacked array of failure flags and the
+    message of each (`camera_dependent`: as for `_input_failures`; `intervals`: the union
+    intervals used and their budget, where Q was integrated)."""
+    partitions, crossovers = events.partitions, events.crossovers
+    failures = _input_failures(
+        scene, events.poses, events.samples, events.sense, options.quadrature, camera_dependent
+    )
     budgets = [
         (partitions.tangents.count, options.max_tangents, "tangency times", "max_tangents"),
         (partitions.shadows.count, options.max_shadows, "shadow times", "max_shadows"),
@@ -387,13 +415,31 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
     return jnp.stack([f for f, _ in failures]), [message for _, message in failures]
 
 
-def _checked(carrier, scene, events: Events, options, camera_dependent: bool, intervals=None):
-    """`carrier`, or an error if a camera or the scene is invalid or a budget was exceeded
-    (arguments as for `_failures`)."""
-    failed, messages = _failures(scene, events, options, camera_dependent, intervals)
-    # One check for all (each error_if is a conditional in the compiled program): the
-    # first failure's message is raised.
+def _checked(carrier, failed, messages):
+    """`carrier`, or an error with the first failure's message (see `_failures`)."""
+    # One check for all (each error_if is a conditional in the compiled program).
     return eqx.branched_error_if(carrier, jnp.any(failed), jnp.argmax(failed), messages)
+
+
+def _value_and_failures(scene, cameras, objective, options):
+    """Q (exact, or smoothed for a `Smoothed` objective), the failure flags of every
+    check and their messages."""
+    objective = as_local_objective(objective)
+    if isinstance(objective, Smoothed):
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
+        poses = _poses(cameras, scene.dtype)
+        samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
+        sense = _sense(scene, samples)
+        groups = _groups(objective, poses.shape[0])
+        value = smoothed_value(scene, poses, objective, sense, groups, scene.observed())
+        failures = _input_failures(scene, poses, samples, sense, options.quadrature, True)
+        failed = jnp.stack([f for f, _ in failures])
+        return value, failed, [message for _, message in failures]
+    events = _events(scene, cameras, objective, options)
+    value, intervals = _value(scene, events, objective, options)
+    failed, messages = _failures(scene, events, options, not objective.is_constant, intervals)
+    return value, failed, messages
 
 
 def visibility(
@@ -402,9 +448,10 @@ def visibility(
     objective: AbstractLocalObjective = Foreshortened(),
     options: VisibilityOptions = VisibilityOptions(),
 ) -> Float[Array, ""]:
-    """The global visibility objective Q of `scene` seen from `cameras` (Eq. 3.15, l = 1).
+    """The global visibility objective Q of `scene` seen from `cameras` (Eq. 3.15).
 
-    Q = sum_i int max_c [chi_i(t, C_c) q(x_i, x_i', C_c)] ||x_i'(t)|| dt: exact up to
+    Q = sum_i int max_G [chi_i(t, G) q(x_i, x_i', G)] ||x_i'(t)|| dt over the groups G of
+    `objective.group_size` cameras (single cameras for most objectives): exact up to
     floating point (events from refined roots, Gauss-Legendre on smooth intervals), and
     differentiable with respect to the cameras, the scene's parameters and the objective's
     parameters. Compiled on first use (`equinox.filter_jit`); works under `jax.jit`,
@@ -413,7 +460,8 @@ def visibility(
     **Arguments:**
     - `scene`: the objects.
     - `cameras`: camera positions, shape (k, 2) (or (2,) for one camera).
-    - `objective`: local objective q (`VisibleLength()`, `Foreshortened()`, or any
+    - `objective`: local objective q (`VisibleLength()`, `Foreshortened()`,
+      `Reconstruction(area)` and `Coverage(m)` of camera groups, or any
       `q(point, tangent, camera) -> scalar`).
     - `options`: grid size and root budgets, see `VisibilityOptions`.
 
@@ -427,20 +475,14 @@ def visibility(
 
 @eqx.filter_jit
 def _visibility(scene, cameras, objective, options):
-    objective = as_local_objective(objective)
-    events = _events(scene, cameras, objective, options)
-    value, intervals = _value(scene, events, objective, options)
-    return _checked(value, scene, events, options, not objective.is_constant, intervals)
+    return _checked(*_value_and_failures(scene, cameras, objective, options))
 
 
 def valid_visibility(scene, cameras, objective, options) -> tuple[Array, Array]:
     """(Q, valid) without raising: `valid` is False where `visibility` would raise (a
     camera inside an object, on a curve or too close to it, an exceeded budget). For
     optimisers and searches, which must step back from such placements, not stop."""
-    objective = as_local_objective(objective)
-    events = _events(scene, cameras, objective, options)
-    value, intervals = _value(scene, events, objective, options)
-    failed, _ = _failures(scene, events, options, not objective.is_constant, intervals)
+    value, failed, _ = _value_and_failures(scene, cameras, objective, options)
     return value, ~jnp.any(failed)
 
 
@@ -501,5 +543,5 @@ def _visible_intervals(scene, cameras, options):
     events = _events(scene, cameras, VisibleLength(), options)
     partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
-    start = _checked(start, scene, events, options, False)
+    start = _checked(start, *_failures(scene, events, options, False))
     return VisibleIntervals(start, end, partitions.visible, partitions.tangents, partitions.shadows)

@@ -15,7 +15,11 @@ objective is
 
 with ``q = 1`` ("visible_length") or ``q = (n.(x-C))^2 / (|n|^2 |x-C|^2)``,
 ``n`` perpendicular to ``x'`` ("foreshortened"), and 0 where no camera sees
-the point.
+the point.  Objectives of camera groups (Eq. 3.15 with l > 1) take the max over
+the l-subsets of cameras that all see the point: ``("reconstruction", area,
+delta)`` values pairs by the triangulation error region (``q = 1 / (1 + (A /
+area)^2)``, ``A = delta^2 d1 d2 / sin(theta)``), ``("coverage", m)`` is the
+length seen by at least m cameras.
 
 Method (exact event points + high-order quadrature; no Richardson needed)
 -------------------------------------------------------------------------
@@ -87,6 +91,7 @@ measure-zero ambiguities.
 """
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -604,19 +609,33 @@ def _ray_clear(geo, C, X, own, tm, chunk=256):
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
 
 
-def _integrand(curve, t, piece, cam, cams, objective):
+def _local_q(objective, x, dx, cams, group):
+    """q at points x (tangents dx) for camera groups ``group`` (index rows, (..., l))."""
+    if objective[0] in ("visible_length", "coverage"):
+        return np.ones(x.shape[:-1])
+    if objective[0] == "foreshortened":
+        d = x - cams[group[..., 0]]
+        cr = _cross(dx, d)
+        den = _dot(dx, dx) * _dot(d, d)
+        return np.where(den > 0, cr * cr / np.where(den > 0, den, 1.0), 0.0)
+    # reconstruction: error parallelogram of two wedges of angle delta, area
+    # A = delta^2 d1 d2 / sin(theta); q = 1 / (1 + (A / area)^2)
+    _, area, delta = objective
+    u1, u2 = x - cams[group[..., 0]], x - cams[group[..., 1]]
+    d1, d2 = np.sqrt(_dot(u1, u1)), np.sqrt(_dot(u2, u2))
+    sin_theta = np.abs(_cross(u1, u2)) / (d1 * d2)
+    with np.errstate(divide="ignore"):
+        A = delta**2 * d1 * d2 / sin_theta
+    return 1.0 / (1.0 + (A / area) ** 2)
+
+
+def _integrand(curve, t, piece, cam, cams, objective, groups):
     x, dx, _ = _eval_local(curve, t, piece)
     sp = np.sqrt(_dot(dx, dx))
-    if objective == "visible_length":
-        return sp
-    d = x - cams[cam]
-    cr = _cross(dx, d)
-    den = _dot(dx, dx) * _dot(d, d)
-    q = np.where(den > 0, cr * cr / np.where(den > 0, den, 1.0), 0.0)
-    return q * sp
+    return _local_q(objective, x, dx, cams, groups[cam]) * sp
 
 
-def _adaptive_gl(curve, a, b, piece, cam, cams, objective, tol, max_level=60):
+def _adaptive_gl(curve, a, b, piece, cam, cams, objective, groups, tol, max_level=60):
     """Adaptive 16-point Gauss-Legendre over many intervals at once.
     Returns (integral, error_estimate)."""
     total, err = 0.0, 0.0
@@ -626,7 +645,7 @@ def _adaptive_gl(curve, a, b, piece, cam, cams, objective, tol, max_level=60):
     def gl(a_, b_):
         h = 0.5 * (b_ - a_)
         tt = 0.5 * (a_ + b_)[:, None] + h[:, None] * _GL_X[None, :]
-        f = _integrand(curve, tt, piece[:, None], cam[:, None], cams, objective)
+        f = _integrand(curve, tt, piece[:, None], cam[:, None], cams, objective, groups)
         return h * (f @ _GL_W)
 
     whole = gl(a, b)
@@ -659,8 +678,17 @@ def _adaptive_gl(curve, a, b, piece, cam, cams, objective, tol, max_level=60):
 # public API
 # ---------------------------------------------------------------------------
 def _check_objective(objective):
-    if objective not in ("visible_length", "foreshortened"):
+    """("visible_length",), ("foreshortened",), ("reconstruction", area, delta) or
+    ("coverage", m), from a name or a tuple."""
+    objective = (objective,) if isinstance(objective, str) else tuple(objective)
+    sizes = {"visible_length": 1, "foreshortened": 1, "reconstruction": 3, "coverage": 2}
+    if objective[0] not in sizes or len(objective) != sizes[objective[0]]:
         raise ValueError(f"unknown objective {objective!r}")
+    return objective
+
+
+def _group_size(objective):
+    return {"reconstruction": 2, "coverage": objective[-1]}.get(objective[0], 1)
 
 
 def reference_visible_intervals(curves, camera, n_grid: int = 4096):
@@ -686,13 +714,16 @@ def reference_visible_intervals(curves, camera, n_grid: int = 4096):
 
 
 def _evaluate(curves, cameras, objective, n_grid, quad_tol, poses=None, observed=None):
-    _check_objective(objective)
+    objective = _check_objective(objective)
     cams = np.atleast_2d(np.asarray(cameras, dtype=float))
     geo = _Geo(curves, n_grid)
     poses = poses or [None] * len(cams)
     parts = [_camera_partition(geo, C, pose=p) for C, p in zip(cams, poses)]
     total, err = 0.0, 0.0
     ncam = cams.shape[0]
+    # Eq. 3.15: the integrand is the best group of l cameras that all see the point.
+    groups = np.array(list(itertools.combinations(range(ncam), _group_size(objective))))
+    varying = objective[0] in ("foreshortened", "reconstruction")
     for i, c in enumerate(geo.curves):
         if observed is not None and not observed[i]:
             continue  # a room's walls: they occlude but are not integrated
@@ -703,34 +734,29 @@ def _evaluate(curves, cameras, objective, n_grid, quad_tol, poses=None, observed
             bk, vk = parts[k][i]
             j = np.clip(np.searchsorted(bk, tm, side="right") - 1, 0, vk.size - 1)
             seen[k] = vk[j]
+        seen = seen[groups].all(axis=1)  # (groups, intervals)
         a_, b_ = b[:-1], b[1:]
         keep = seen.any(axis=0) & (b_ > a_)
         a_, b_, seen = a_[keep], b_[keep], seen[:, keep]
         piece = _piece_of(c, 0.5 * (a_ + b_))
-        if objective == "foreshortened" and ncam > 1 and a_.size:
-            a_, b_, piece, seen = _split_at_kinks(c, cams, a_, b_, piece, seen)
-        # arg-max camera on each final piece (first seeing camera for length)
+        if varying and len(groups) > 1 and a_.size:
+            a_, b_, piece, seen = _split_at_kinks(c, cams, objective, groups, a_, b_, piece, seen)
+        # arg-max group on each final piece (first seeing group for constant q)
         tmid = 0.5 * (a_ + b_)
-        if objective == "foreshortened":
-            x, dx, _ = _eval_local(c, tmid, piece)
-            d = x[None] - cams[:, None, :]
-            q = _cross(dx[None], d) ** 2 / np.maximum(_dot(dx, dx)[None] * _dot(d, d), 1e-300)
-            q = np.where(seen, q, -1.0)
-            cam = np.argmax(q, axis=0)
-        else:
-            cam = np.argmax(seen, axis=0)
-        val, e = _adaptive_gl(c, a_, b_, piece, cam, cams, objective, quad_tol)
+        x, dx, _ = _eval_local(c, tmid, piece)
+        q = _local_q(objective, x[None], dx[None], cams, groups[:, None, :])
+        cam = np.argmax(np.where(seen, q, -1.0), axis=0)
+        val, e = _adaptive_gl(c, a_, b_, piece, cam, cams, objective, groups, quad_tol)
         total += val
         err += e
     return total, err
 
 
-def _split_at_kinks(curve, cams, a, b, piece, seen, m=128):
-    """Split intervals seen by >= 2 cameras at the roots of q_a - q_b."""
+def _split_at_kinks(curve, cams, objective, groups, a, b, piece, seen, m=128):
+    """Split intervals seen by >= 2 camera groups at the roots of q_a - q_b."""
     rows_i, pa, pb = [], [], []
-    ncam = cams.shape[0]
-    for k1 in range(ncam):
-        for k2 in range(k1 + 1, ncam):
+    for k1 in range(len(groups)):
+        for k2 in range(k1 + 1, len(groups)):
             both = np.nonzero(seen[k1] & seen[k2])[0]
             rows_i.append(both)
             pa.append(np.full(both.size, k1))
@@ -741,10 +767,9 @@ def _split_at_kinks(curve, cams, a, b, piece, seen, m=128):
     pa = np.concatenate(pa)
     pb = np.concatenate(pb)
 
-    def qfun(t, pc, cam):
+    def qfun(t, pc, g):
         x, dx, _ = _eval_local(curve, t, pc)
-        d = x - cams[cam]
-        return _cross(dx, d) ** 2 / np.maximum(_dot(dx, dx) * _dot(d, d), 1e-300)
+        return _local_q(objective, x, dx, cams, groups[g])
 
     def F(rows, s):
         pc = piece[ri[rows]]
@@ -777,11 +802,13 @@ def _split_at_kinks(curve, cams, a, b, piece, seen, m=128):
             np.concatenate(ns, axis=1))
 
 
-def reference_visibility(curves, cameras, objective: str = "foreshortened",
+def reference_visibility(curves, cameras, objective="foreshortened",
                          n_grid: int = 4096, quad_tol: float = 1e-14, poses=None,
                          observed=None) -> float:
     """Reference value of Q (see module docstring).
 
+    objective: "visible_length", "foreshortened", ("reconstruction", area, delta) (pairs
+    of cameras) or ("coverage", m) (length seen by >= m cameras);
     n_grid: grid points per curve used to *detect* roots (not an accuracy
     parameter); quad_tol: relative tolerance of the adaptive quadrature; poses: optional
     list (one per camera) of dicts with heading, half_fov and range (None: unlimited),
@@ -790,7 +817,7 @@ def reference_visibility(curves, cameras, objective: str = "foreshortened",
     return _evaluate(curves, cameras, objective, n_grid, quad_tol, poses, observed)[0]
 
 
-def reference_visibility_with_error(curves, cameras, objective: str = "foreshortened",
+def reference_visibility_with_error(curves, cameras, objective="foreshortened",
                                     n_grid: int = 4096, quad_tol: float = 1e-14):
     """Return ``(Q, error_estimate)``: Q from grid ``n_grid``; the estimate is
     the difference to an evaluation with an unrelated grid (~1.618 n_grid),

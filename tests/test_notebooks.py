@@ -15,7 +15,13 @@ NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.
 
 def test_the_notebooks_are_there():
     names = [path.stem for path in NOTEBOOKS]
-    assert names == ["01_quickstart", "02_thesis_example", "03_gradients", "04_jax_pipelines"]
+    assert names == [
+        "01_quickstart",
+        "02_thesis_example",
+        "03_gradients",
+        "04_jax_pipelines",
+        "05_objectives",
+    ]
 
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda path: path.stem)

@@ -95,7 +95,19 @@ def jax_leaves(tree):
             },
             r"placement \(rectangle\): .*width and height must be positive",
         ),
-        ({**PROBLEM, "objective": "area"}, "objective: unknown 'area'"),
+        ({**PROBLEM, "objective": "area"}, "objective: unknown type 'area'"),
+        (
+            {**PROBLEM, "objective": {"type": "smoothed", "width": 0.1}},
+            r"objective \(smoothed\): missing \['objective'\]",
+        ),
+        (
+            {**PROBLEM, "objective": {"type": "smoothed", "objective": "fs", "width": 0.1}},
+            "objective.objective: unknown type 'fs'",
+        ),
+        (
+            {**PROBLEM, "objective": {"type": "coverage", "m": 0}},
+            r"objective \(coverage\): Coverage.m must be a positive int",
+        ),
         ({**PROBLEM, "cameras": 2}, r"Unknown top-level keys \['cameras'\]"),
     ],
 )
@@ -123,6 +135,48 @@ def test_cli_optimize(tmp_path, capsys):
     )
     assert value == pytest.approx(float(expected.value), abs=5e-7)
     assert value == pytest.approx(4.7047495, abs=1e-6)
+
+
+def test_objectives_round_trip(tmp_path):
+    """Every objective with parameters, a smoothed one nested, through the JSON form."""
+    scene = ocp.Scene([ocp.Circle(jnp.zeros(2), 1.0)])
+    placement = ocp.RectangleBoundary(jnp.zeros(2), 8.0, 8.0)
+    objectives = [
+        ocp.Reconstruction(area=0.05, delta=0.02),
+        ocp.Coverage(3),
+        ocp.Smoothed(ocp.Reconstruction(area=0.1), 0.05, delta=0.2, nodes=64),
+        ocp.Smoothed(ocp.VisibleLength(), 0.1),
+    ]
+    for objective in objectives:
+        loaded = load_problem(write(tmp_path, problem_to_json(scene, placement, objective)))
+        assert loaded.objective == objective or (
+            type(loaded.objective) is type(objective)
+            and jax.tree.structure(loaded.objective) == jax.tree.structure(objective)
+            and all(
+                np.asarray(a) == np.asarray(b)
+                for a, b in zip(jax.tree.leaves(loaded.objective), jax.tree.leaves(objective))
+            )
+        ), (loaded.objective, objective)
+    with pytest.raises(TypeError, match="LocalObjective has no JSON form"):
+        problem_to_json(scene, placement, ocp.LocalObjective(lambda x, t, c: 1.0))
+
+
+def test_cli_optimize_reconstruction(tmp_path, capsys):
+    """The command line takes an objective of camera pairs from the file, and says
+    clearly when there are too few cameras for it."""
+    objective = {"type": "reconstruction", "area": 0.05, "delta": 0.05}
+    path = write(tmp_path, {**PROBLEM, "objective": objective})
+    _cli.main(["optimize", str(path), "--cameras", "2", "--starts", "2", "--max-steps", "20"])
+    out = capsys.readouterr().out
+    assert "2 curve(s), RectangleBoundary, Reconstruction" in out
+    value = float(out.split("Q = ")[1].split()[0])
+    problem = load_problem(path)
+    expected = ocp.optimize(
+        problem.scene, problem.objective, problem.placement, 2, n_starts=2, max_steps=20
+    )
+    assert value == pytest.approx(float(expected.value), abs=5e-7) and value > 0
+    with pytest.raises(SystemExit, match="Reconstruction values groups of 2 cameras"):
+        _cli.main(["optimize", str(path), "--cameras", "1"])
 
 
 def test_cli_reports_bad_files(tmp_path):
