@@ -130,20 +130,25 @@ def directional_difference(f, scene, eps, seed=0):
     return fd, sum(jnp.vdot(a, b) for a, b in zip(jax.tree.leaves(grad), jax.tree.leaves(v)))
 
 
-@pytest.mark.parametrize(
-    "objective", [RECONSTRUCTION, ocp.Coverage(2)], ids=["reconstruction", "coverage"]
-)
-def test_group_gradients_match_differences(objective):
-    """dQ/dcameras and dQ/dscene (a random direction over every control point) against
-    central differences, 3 cameras on the mixed scene (Bezier, circle, ellipse)."""
-    scene = H.MIXED
-    cameras = np.asarray(H.CAMERAS["mixed"][3][0])
+def assert_gradients_match_differences(scene, cameras, objective):
+    """dQ/dcameras against central differences in every coordinate, and dQ/dscene along
+    a random direction over every parameter, both to 1e-6 relative."""
+    cameras = np.asarray(cameras)
     value = jax.jit(lambda s, c: ocp.visibility(s, c, objective))
     grad = jax.grad(value, argnums=1)(scene, jnp.asarray(cameras))
     fd = central_differences(lambda c: value(scene, c), cameras, 1e-6)
     assert np.max(np.abs(grad - fd)) <= 1e-6 * np.max(np.abs(fd)), (grad, fd)
     fd, ad = directional_difference(lambda s: value(s, jnp.asarray(cameras)), scene, 1e-6)
     assert abs(fd / ad - 1) < 1e-6
+
+
+@pytest.mark.parametrize(
+    "objective", [RECONSTRUCTION, ocp.Coverage(2)], ids=["reconstruction", "coverage"]
+)
+def test_group_gradients_match_differences(objective):
+    """dQ/dcameras and dQ/dscene (a random direction over every control point) against
+    central differences, 3 cameras on the mixed scene (Bezier, circle, ellipse)."""
+    assert_gradients_match_differences(H.MIXED, H.CAMERAS["mixed"][3][0], objective)
 
 
 def test_group_objectives_need_enough_cameras():
@@ -207,15 +212,8 @@ def test_smoothed_matches_exact_on_the_banana():
 def test_smoothed_gradients_match_differences(inner):
     """Gradients of the smoothed Q (cameras, and every control point along a random
     direction) against central differences, two cameras among three objects."""
-    scene = H.THREE
-    cameras = np.asarray(H.CAMERAS["three"][2][1])
     objective = ocp.Smoothed(inner, 0.05, nodes=64)
-    value = jax.jit(lambda s, c: ocp.visibility(s, c, objective))
-    grad = jax.grad(value, argnums=1)(scene, jnp.asarray(cameras))
-    fd = central_differences(lambda c: value(scene, c), cameras, 1e-6)
-    assert np.max(np.abs(grad - fd)) <= 1e-6 * np.max(np.abs(fd)), (grad, fd)
-    fd, ad = directional_difference(lambda s: value(s, jnp.asarray(cameras)), scene, 1e-6)
-    assert abs(fd / ad - 1) < 1e-6
+    assert_gradients_match_differences(H.THREE, H.CAMERAS["three"][2][1], objective)
 
 
 def test_smoothed_bad_input():
