@@ -11,11 +11,13 @@ valid local objective; wrap it in `LocalObjective` to give it a name, or pass it
 """
 
 import abc
+import itertools
 from collections.abc import Callable
 from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ._curves import _is_concrete
@@ -168,6 +170,22 @@ class LocalObjective(AbstractLocalObjective):
 
     def __call__(self, point, tangent, camera):
         return self.fn(point, tangent, camera)
+
+
+def camera_groups(objective: AbstractLocalObjective, k: int) -> np.ndarray:
+    """The camera groups of Eq. 3.15: every l-subset of the k cameras, (G, l) indices."""
+    size = objective.group_size
+    if k < size:
+        raise ValueError(
+            f"ocp_jax: {type(objective).__name__} values groups of {size} cameras; pass at "
+            f"least {size} cameras, got {k}."
+        )
+    return np.array(list(itertools.combinations(range(k), size)))
+
+
+def group_members(cameras: Vec, groups: np.ndarray) -> tuple[Vec, ...]:
+    """The positions of the groups' members: one `Vec` of shape (G,) per member."""
+    return tuple(cameras.map(lambda a: a[groups[:, j]]) for j in range(groups.shape[1]))
 
 
 def as_local_objective(q) -> AbstractLocalObjective:

@@ -31,10 +31,15 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
+from ._objectives import (
+    AbstractLocalObjective,
+    Foreshortened,
+    as_local_objective,
+    camera_groups,
+)
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, _groups, valid_visibility, visibility
+from ._visibility import VisibilityOptions, valid_visibility, visibility
 
 __all__ = ["OptimizeResult", "optimize"]
 
@@ -263,7 +268,7 @@ def _problem_and_starts(
             f"starts must have shape (n_starts, n_cameras={n_cameras}, p), got {starts.shape}."
         )
     problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
-    _groups(problem.objective, n_cameras)  # enough cameras for the objective's groups
+    camera_groups(problem.objective, n_cameras)  # enough cameras for the objective's groups
     return problem, starts
 
 

@@ -21,10 +21,11 @@ and an occluder node x_j (u_j, r_j):
   |cross(x_j - C, x_j')| / r_j^2 dt, not over dt': normalised by the cone's own angular
   measure 2 w softplus(delta / w) it counts occluding layers, O_i ~ 0 (free) or >= 1
   (hidden), independently of the curves' parametrisation and of the scene's scale;
-- threshold: chi_i = sigma((1/2 - O_i) / w) times the facing factor
+- threshold: chi_i = 1 - sigma((O_i - 1/2) / w) times the facing factor
   sigma(cos(alpha_i) / w) (alpha_i between the outward normal and the direction to the
   camera): a back-facing point of a closed curve is hidden, the exact test the engine
-  also starts with; it makes the silhouettes of convex objects converge at rate w.
+  also starts with (without it the back side next to a silhouette stays in the
+  silhouette's window and counts as seen).
 
 Trivial self-occlusions (Eqs. 6.6, 6.7). Every point's own neighbours on its curve lie
 in its cone at about its depth, so Eq. 6.5 alone hides half of every object. The thesis
@@ -37,10 +38,12 @@ and counts as an occluder with weight (1 - e_forward)(1 - e_backward). A part of
 curve reached only after leaving the cone (a real self-occlusion) keeps its full weight.
 
 Cost: O((m N)^2) per camera (every node against every node), against the exact
-engine's events; memory is bounded by evaluating one camera at a time. The error has
-two parts: the smoothing (O(w) on the length of a convex object's silhouette
-neighbourhood, see benchmarks/smoothed_vs_exact.py) and the midpoint rule (needs the
-node spacing well below w times the distance).
+engine's events; memory is bounded by evaluating one camera at a time. Error, measured
+in benchmarks/smoothed_vs_exact.py: on a convex object O(w^2) for the visible length and
+O(w^4) for the foreshortened Q once w < ~0.05 (before that exp(-1 / (2 w)), from the
+threshold); with occluders O(w), the cone widening every shadow by about delta times the
+distance. The midpoint rule adds its own unless the node spacing is well below w times
+the camera distance.
 """
 
 from typing import ClassVar
@@ -53,7 +56,7 @@ from jaxtyping import Array, Float
 
 from ._camera import Camera
 from ._curves import _is_concrete
-from ._objectives import AbstractLocalObjective, as_local_objective
+from ._objectives import AbstractLocalObjective, as_local_objective, group_members
 from ._vec import Vec, cross, norm, sub
 
 __all__ = ["Smoothed"]
@@ -159,9 +162,8 @@ def _seen(camera: Vec, x: Vec, dx: Vec, sense, width, delta) -> Float[Array, "m 
     keep = 1 + same_curve * (own[:, :, None, :] - 1)  # other curves: 1
     measure = 2 * width * jax.nn.softplus(delta / width)  # int sigmoid((delta - |phi|)/w) dphi
     layers = jnp.sum(keep.reshape(cone.shape) * cone * front * sweep[None], axis=1) / measure
-    return jax.nn.sigmoid((0.5 - layers.reshape(m, count)) / width) * jax.nn.sigmoid(
-        facing / width
-    )
+    hidden = jax.nn.sigmoid((layers.reshape(m, count) - 0.5) / width)  # Eq. 6.4
+    return (1 - hidden) * jax.nn.sigmoid(facing / width)
 
 
 def smoothed_value(scene, poses: Camera, objective: Smoothed, sense, groups, observed):
@@ -179,9 +181,7 @@ def smoothed_value(scene, poses: Camera, objective: Smoothed, sense, groups, obs
         lambda c: _seen(Vec(*c), x, dx, sense, width, delta), (cameras.x, cameras.y)
     )  # (k, m, N)
     by_group = jnp.prod(seen[groups], axis=1)  # (G, m, N)
-    members = tuple(
-        cameras.map(lambda a: a[groups[:, j], None, None]) for j in range(groups.shape[1])
-    )
+    members = (c.map(lambda a: a[:, None, None]) for c in group_members(cameras, groups))
     local = objective.objective.evaluate(
         x.map(lambda a: a[None]), dx.map(lambda a: a[None]), *members
     )

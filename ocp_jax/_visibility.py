@@ -41,7 +41,14 @@ from ._events import (
     tangency_times,
     wedge_edges,
 )
-from ._objectives import AbstractLocalObjective, Foreshortened, VisibleLength, as_local_objective
+from ._objectives import (
+    AbstractLocalObjective,
+    Foreshortened,
+    VisibleLength,
+    as_local_objective,
+    camera_groups,
+    group_members,
+)
 from ._occlusion import in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
 from ._roots import safe_divisor
@@ -127,8 +134,10 @@ class Events(NamedTuple):
     poses: Camera
 
 
-def _poses(cameras, dtype) -> Camera:
+def _poses(scene: Scene, cameras) -> Camera:
     """`cameras` as a `Camera` batched over k >= 1 cameras, in the scene's float type."""
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
     if not isinstance(cameras, Camera):
         cameras = jnp.asarray(cameras)
         if cameras.ndim == 1:
@@ -145,7 +154,7 @@ def _poses(cameras, dtype) -> Camera:
         raise ValueError(
             f"a Camera's position must have shape (k, 2) with k >= 1, got {cameras.position.shape}."
         )
-    dtype = jnp.result_type(cameras.position.dtype, dtype, float)
+    dtype = jnp.result_type(cameras.position.dtype, scene.dtype, float)
     return jax.tree.map(lambda a: a.astype(dtype), cameras)
 
 
@@ -192,22 +201,6 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]))
     visible = visible_points(Vec.of(frozen.position), samples, sense, t_mid, x_mid, dx_mid)
     return CameraPartition(events, visible & in_view(frozen, x_mid), tangents, shadows, ranges)
-
-
-def _groups(objective: AbstractLocalObjective, k: int) -> np.ndarray:
-    """The camera groups of Eq. 3.15: every l-subset of the k cameras, (G, l) indices."""
-    size = objective.group_size
-    if k < size:
-        raise ValueError(
-            f"ocp_jax: {type(objective).__name__} values groups of {size} cameras; pass at "
-            f"least {size} cameras, got {k}."
-        )
-    return np.array(list(itertools.combinations(range(k), size)))
-
-
-def _group_cameras(cameras: Vec, groups: np.ndarray) -> tuple[Vec, ...]:
-    """The positions of the groups' members: one `Vec` of shape (G,) per member."""
-    return tuple(cameras.map(lambda a: a[groups[:, j]]) for j in range(groups.shape[1]))
 
 
 def _integrand(t, args):
@@ -285,16 +278,14 @@ def _check_cameras(scene, cameras: Vec, samples: Samples, sense, quadrature: int
 def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Events:
     """The events of every camera on every curve, and their crossovers (for several
     cameras and a camera-dependent q)."""
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
-    poses = _poses(cameras, scene.dtype)
+    poses = _poses(scene, cameras)
     cameras = Vec.of(poses.position)
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = _sense(scene, samples)
     partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
         scene, poses, samples, sense, options
     )
-    groups = _groups(objective, cameras.x.shape[0])
+    groups = camera_groups(objective, cameras.x.shape[0])
     crossovers = None
     if len(groups) > 1 and not objective.is_constant:
         pairs = np.array(list(itertools.combinations(range(len(groups)), 2)))
@@ -302,8 +293,8 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
             crossover_times, in_axes=(None, 0, 0, None, None, None, None)
         )(
             scene,
-            _group_cameras(cameras, groups[pairs[:, 0]]),
-            _group_cameras(cameras, groups[pairs[:, 1]]),
+            group_members(cameras, groups[pairs[:, 0]]),
+            group_members(cameras, groups[pairs[:, 1]]),
             objective,
             samples,
             options.max_crossovers,
@@ -338,7 +329,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     seen = jnp.take_along_axis(partitions.visible, own, axis=-1) & scene.observed()[None, :, None]
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 
-    args = (scene, _group_cameras(events.cameras, events.groups), objective, seen_by_group)
+    args = (scene, group_members(events.cameras, events.groups), objective, seen_by_group)
     value = jnp.sum(gauss_legendre(_integrand, start, end, args, options.quadrature))
     return value, (used, budget)
 
@@ -426,14 +417,13 @@ def _value_and_failures(scene, cameras, objective, options):
     check and their messages."""
     objective = as_local_objective(objective)
     if isinstance(objective, Smoothed):
-        if not isinstance(scene, Scene):
-            raise TypeError(f"scene must be an ocp_jax.Scene, got {type(scene).__name__}.")
-        poses = _poses(cameras, scene.dtype)
+        poses = _poses(scene, cameras)
         samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
         sense = _sense(scene, samples)
-        groups = _groups(objective, poses.shape[0])
+        groups = camera_groups(objective, poses.shape[0])
         value = smoothed_value(scene, poses, objective, sense, groups, scene.observed())
-        failures = _input_failures(scene, poses, samples, sense, options.quadrature, True)
+        # (no too-close check: it concerns the exact engine's Gauss-Legendre nodes)
+        failures = _input_failures(scene, poses, samples, sense, options.quadrature, False)
         failed = jnp.stack([f for f, _ in failures])
         return value, failed, [message for _, message in failures]
     events = _events(scene, cameras, objective, options)
@@ -462,7 +452,8 @@ def visibility(
     - `cameras`: camera positions, shape (k, 2) (or (2,) for one camera).
     - `objective`: local objective q (`VisibleLength()`, `Foreshortened()`,
       `Reconstruction(area)` and `Coverage(m)` of camera groups, or any
-      `q(point, tangent, camera) -> scalar`).
+      `q(point, tangent, camera) -> scalar`); wrapped in `Smoothed(q, width)`, Q is the
+      smoothed visibility of Chapter 6 instead (by quadrature, no events).
     - `options`: grid size and root budgets, see `VisibilityOptions`.
 
     **Returns:** the scalar Q.
