@@ -81,7 +81,10 @@ def convergence(quick: bool):
         errors = [float(value(jnp.asarray(w))) - exact for w in widths]
         print(f"{name:42s} {nodes:6d} " + " ".join(f"{e:10.2e}" for e in errors))
         rates = [math.log2(abs(a / b)) for a, b in zip(errors, errors[1:])]
-        print(f"{'  rate log2(err(w)/err(w/2))':42s} {'':6s} {'':10s} " + " ".join(f"{r:10.2f}" for r in rates))
+        print(
+            f"{'  rate log2(err(w)/err(w/2))':42s} {'':6s} {'':10s} "
+            + " ".join(f"{r:10.2f}" for r in rates)
+        )
     print()
 
 
@@ -111,7 +114,12 @@ def continuation(quick: bool):
     stage_steps = 20 if quick else 40
     blob_scene = scenes.blobs(10)
     problems = [
-        ("banana, 2 cameras", scenes.banana(), ocp.RectangleBoundary(*scenes.BANANA_RECTANGLE), 256),
+        (
+            "banana, 2 cameras",
+            scenes.banana(),
+            ocp.RectangleBoundary(*scenes.BANANA_RECTANGLE),
+            256,
+        ),
         (
             "10 blobs, 2 cameras",
             blob_scene,
@@ -140,7 +148,11 @@ def continuation(quick: bool):
         evaluations += final.num_evaluations
         values = {
             "exact alone": (np.asarray(alone.start_values), alone.num_evaluations, alone_seconds),
-            "continuation -> exact": (np.asarray(final.start_values), evaluations, continued_seconds),
+            "continuation -> exact": (
+                np.asarray(final.start_values),
+                evaluations,
+                continued_seconds,
+            ),
         }
         best = max(np.nanmax(np.where(np.isfinite(v), v, np.nan)) for v, _, _ in values.values())
         for method, (v, count, seconds) in values.items():

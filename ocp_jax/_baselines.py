@@ -24,7 +24,7 @@ import scipy.optimize
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._camera import Camera
-from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective
+from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective, camera_groups
 from ._optimize import OptimizeResult, _best, _problem_and_starts, _tolerance
 from ._placement import AbstractPlacement
 from ._scene import Scene
@@ -149,17 +149,12 @@ def greedy(
     **Returns:** a `SearchResult`.
     """
     objective = as_local_objective(objective)
-    size = objective.group_size
-    if n_cameras < size:
-        raise ValueError(
-            f"ocp_jax.greedy: {type(objective).__name__} values groups of {size} cameras; "
-            f"n_cameras={n_cameras} is too few."
-        )
+    camera_groups(objective, n_cameras)  # enough cameras for the objective's groups
     candidates, layout = _admissible_candidates(scene, placement, resolution)
     clock = time.perf_counter()
-    sets = candidates[np.array(list(itertools.combinations(range(len(candidates)), size)))]
+    sets = candidates[camera_groups(objective, len(candidates))]  # every l-subset
     evaluations, stages = 0, []
-    for _ in range(n_cameras - size + 1):
+    for _ in range(n_cameras - objective.group_size + 1):
         values = _values_of_sets(scene, objective, options, sets, chunk, layout)
         evaluations += len(sets)
         stages.append(values)
