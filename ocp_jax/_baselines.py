@@ -43,8 +43,8 @@ class SearchResult(eqx.Module):
     - `candidates` (n, 2): the admissible candidate positions (for poses (n, r) rows
       [x, y, heading, half_fov, range], the last two where the cameras have them);
     - `stage_values`: greedy: Q over the candidates at each stage (k arrays of n; the
-      thesis's Fig. 5.5; for groups of l cameras the first holds the l-subsets);
-      exhaustive: the best Q found after each chunk.
+      thesis's Fig. 5.5; for groups of l > 1 cameras k - l + 1 arrays, the first over
+      the binomial(n, l) l-subsets); exhaustive: the best Q found after each chunk.
     """
 
     cameras: Float[Array, "k 2"]

@@ -9,7 +9,7 @@ over possible occluders by a threshold on an integral (Eqs. 6.2-6.4):
 which needs no roots, no event budgets and no assumptions on the curves, and is smooth
 in the cameras and the scene. We evaluate it by quadrature: every curve is sampled at N
 midpoint nodes t_j = (j + 1/2) / N, every node is a target and an occluder, and Q is the
-midpoint rule for sum_i int max_G [prod_{C in G} chi(t, C)] q ||x'|| dt. With one
+midpoint rule for sum_i int max_G [prod_{C in G} chi(t, C) q(x, x', G)] ||x'|| dt. With one
 `width` w (radians) for every sigmoid sigma(z / w) and a cone of half-angle
 `delta` (default 2 w), for a target x_i seen along the unit vector u_i at distance r_i
 and an occluder node x_j (u_j, r_j):
@@ -40,9 +40,10 @@ curve reached only after leaving the cone (a real self-occlusion) keeps its full
 Cost: O((m N)^2) per camera (every node against every node), against the exact
 engine's events; memory is bounded by evaluating one camera at a time. Error, measured
 in benchmarks/smoothed_vs_exact.py: on a convex object O(w^2) for the visible length and
-O(w^4) for the foreshortened Q once w < ~0.05 (before that exp(-1 / (2 w)), from the
-threshold); with occluders O(w), the cone widening every shadow by about delta times the
-distance. The midpoint rule adds its own unless the node spacing is well below w times
+about O(w^4) (rates 3.5-4) for the foreshortened Q once w <= ~0.025 (for wider w the
+threshold's error, ~exp(-1 / (2 w)), dominates, and near w = 0.05 the two errors, of
+opposite signs, cancel); with occluders O(w), the cone widening every shadow by about
+delta times the distance. The midpoint rule adds its own unless the node spacing is well below w times
 the camera distance.
 """
 
