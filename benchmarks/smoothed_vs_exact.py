@@ -26,18 +26,10 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
+from evaluate import timed  # noqa: E402  (benchmarks/evaluate.py)
+
 import ocp_jax as ocp  # noqa: E402
 from ocp_jax import scenes  # noqa: E402
-
-
-def timed(fn, *args, repeat=5):
-    jax.block_until_ready(fn(*args))
-    best = math.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - start)
-    return best
 
 
 def convergence(quick: bool):
@@ -89,7 +81,7 @@ def convergence(quick: bool):
 
 
 def cost(quick: bool):
-    print("2. Cost of value and gradient after compilation (best of 5)")
+    print("2. Cost of value and gradient after compilation (median of >= 5 calls, >= 0.5 s)")
     cases = [
         ("banana, k=1", scenes.banana(), jnp.array([[50.0, 0.0]])),
         ("10 blobs, k=2", scenes.blobs(10), jnp.array([[-2.5, 3.0], [11.5, 4.0]])),
@@ -102,7 +94,7 @@ def cost(quick: bool):
             ocp.Smoothed(ocp.Foreshortened(), 0.02, nodes=n) for n in node_counts
         ]:
             fn = jax.jit(jax.value_and_grad(lambda c, q=objective: ocp.visibility(scene, c, q)))
-            row.append(timed(fn, cameras))
+            row.append(timed(fn, cameras, repeats=1))
         print(f"{name:16s} " + " ".join(f"{1e3 * t:8.2f}ms" for t in row))
     print()
 

@@ -6,8 +6,9 @@ compile with `--xla_backend_optimization_level=0`: it halves compile time and do
 change the floating-point semantics (no fast-math either way). Set
 OCP_TEST_XLA_DEFAULT_OPT=1 to test with XLA's default optimisation level.
 
-Compiled functions are shared through module-level caches (helpers.batched and the
-`functools.cache` functions in test_visibility.py), which live for the whole session.
+Compiled functions are shared within a test module (helpers.batched and the modules'
+`functools.cache` functions); every compiled program is dropped after each module (see
+`_release_compiled_programs`).
 """
 
 import gc

@@ -217,6 +217,17 @@ def circle_foreshortened(r, d, xp=np):
     return g(alpha, r, d, xp) - g(-alpha, r, d, xp)
 
 
+def central_differences(f, x, eps):
+    """df/dx by central differences in every coordinate of the array x."""
+    x = np.asarray(x, float)
+    out = np.zeros_like(x)
+    for i in np.ndindex(x.shape):
+        step = np.zeros_like(x)
+        step[i] = eps
+        out[i] = (f(jnp.asarray(x + step)) - f(jnp.asarray(x - step))) / (2 * eps)
+    return out
+
+
 def relative_error(a, b):
     a, b = np.asarray(a, float), np.asarray(b, float)
     return float(np.linalg.norm(a - b) / max(np.linalg.norm(b), 1e-300))

@@ -111,17 +111,6 @@ def rotate(v, angle):
     return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
-def central_differences(f, x, eps):
-    """df/dx by central differences in every coordinate of the array x."""
-    x = np.asarray(x, float)
-    out = np.zeros_like(x)
-    for i in np.ndindex(x.shape):
-        step = np.zeros_like(x)
-        step[i] = eps
-        out[i] = (f(jnp.asarray(x + step)) - f(jnp.asarray(x - step))) / (2 * eps)
-    return out
-
-
 def assert_gradients_match_differences(scene, cameras, objective):
     """dQ/dcameras against central differences in every coordinate, and dQ/dscene along
     a random direction over every parameter, both to 1e-6 relative (one compiled value
@@ -129,7 +118,7 @@ def assert_gradients_match_differences(scene, cameras, objective):
     cameras = np.asarray(cameras)
     value = jax.jit(lambda s, c: ocp.visibility(s, c, objective))
     grad_scene, grad_cameras = jax.jit(jax.grad(value, argnums=(0, 1)))(scene, jnp.asarray(cameras))
-    fd = central_differences(lambda c: value(scene, c), cameras, 1e-6)
+    fd = H.central_differences(lambda c: value(scene, c), cameras, 1e-6)
     assert np.max(np.abs(grad_cameras - fd)) <= 1e-6 * np.max(np.abs(fd)), (grad_cameras, fd)
     leaves, tree = jax.tree.flatten(scene)
     keys = jax.random.split(jax.random.key(0), len(leaves))
