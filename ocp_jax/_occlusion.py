@@ -20,6 +20,7 @@ event times and the integrand).
 """
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._events import Samples
@@ -84,15 +85,16 @@ def visible_points(
     facing = sense[:, None] * cross(dx_mid, d) > 0
     sight = sub(samples.x, camera)
 
-    # Every other curve j: arrays (m, q, m_j, N + 1).
+    # Every other curve j (static indices, none for a single curve): arrays
+    # (m, q, m - 1, N + 1).
+    other = np.array([[j for j in range(m) if j != i] for i in range(m)], int).reshape(m, m - 1)
     dd = d.map(lambda a: a[:, :, None, None])
-    sight_j = sight.map(lambda a: a[None, None])
-    dg_j = samples.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None, None])))
+    sight_j = sight.map(lambda a: a[other][:, None])
+    dg_j = samples.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[other][:, None])))
     others = _crosses_segment(
         cross(dd, sight_j), dg_j, dot(dd, sight_j), reach[:, :, None, None], h
     )
-    not_own = ~jnp.eye(m, dtype=bool)[:, None, :, None]
-    blocked = jnp.any(others & not_own, axis=(-1, -2))
+    blocked = jnp.any(others, axis=(-1, -2))
 
     # The query's own curve: deflate the trivial root at t_mid, r = g / (t - t_mid),
     # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 there.

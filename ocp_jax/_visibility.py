@@ -74,6 +74,11 @@ class VisibilityOptions(eqx.Module):
     - `max_intervals`: per curve, the intervals between the events of all cameras that
       are integrated (the budgets above are per camera and rarely all used at once); None
       (default) takes the panels and corners plus half of the cameras' event budgets.
+    - `max_camera_intervals`: per curve and camera, the intervals of the camera's own
+      partition that are tested for visibility (the test of every query point against
+      every curve is the costliest step of scenes with many objects); None (default)
+      takes the corners plus half of the camera's event budgets, which for one camera
+      admits exactly the events that the default `max_intervals` admits.
     - `quadrature`: Gauss-Legendre nodes per interval; intervals are also cut at each
       curve's panel `breakpoints`. 16 nodes give ~1e-12 relative error for cameras at
       a fair distance; a camera very close to a curve makes q = cos^2 nearly singular
@@ -89,6 +94,7 @@ class VisibilityOptions(eqx.Module):
     max_crossovers: int = eqx.field(static=True, default=16)
     max_range_crossings: int = eqx.field(static=True, default=8)
     max_intervals: int | None = eqx.field(static=True, default=None)
+    max_camera_intervals: int | None = eqx.field(static=True, default=None)
     quadrature: int = eqx.field(static=True, default=16)
     newton_iterations: int = eqx.field(static=True, default=8)
 
@@ -100,11 +106,12 @@ class VisibilityOptions(eqx.Module):
             "max_crossovers",
             "max_range_crossings",
             "max_intervals",
+            "max_camera_intervals",
             "quadrature",
             "newton_iterations",
         ):
             value = getattr(self, name)
-            if name in ("grid", "max_intervals") and value is None:
+            if name in ("grid", "max_intervals", "max_camera_intervals") and value is None:
                 continue
             if not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"VisibilityOptions.{name} must be a positive int, got {value!r}.")
@@ -173,6 +180,18 @@ def _intervals(events: Float[Array, "m e"]):
     return events, ends
 
 
+def _corner_slots(scene: Scene) -> int:
+    """The event slots that every camera gives the corners of each curve."""
+    return scene.corners()[0].shape[1] if scene.has_corners else 0
+
+
+def _interval_budget(option: int | None, fixed: int, slots: int) -> int:
+    """A static budget of the intervals between `slots` sorted events (padded with t = 1)
+    that are kept: `option`, or by default the `fixed` ones (breakpoints, corners) plus
+    half of the others, the cameras' root budgets, which are rarely all used at once."""
+    return min(option, slots) if option is not None else fixed + (slots - fixed + 1) // 2
+
+
 def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPartition:
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
@@ -195,12 +214,16 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
         ranges = range_times(scene, camera, pose.range, samples, options.max_range_crossings, iters)
         pieces.append(ranges.t)
     events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
-    # The visibility decision carries no derivative.
+    # The visibility decision carries no derivative. Only the first `tested` intervals
+    # are tested; the others are padding at t = 1 (their count is checked in `_failures`).
+    tested = _interval_budget(options.max_camera_intervals, _corner_slots(scene), events.shape[1])
     start, end = jax.lax.stop_gradient(_intervals(events))
-    t_mid = 0.5 * (start + end)
+    t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]))
     visible = visible_points(Vec.of(frozen.position), samples, sense, t_mid, x_mid, dx_mid)
-    return CameraPartition(events, visible & in_view(frozen, x_mid), tangents, shadows, ranges)
+    padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
+    visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
+    return CameraPartition(events, visible, tangents, shadows, ranges)
 
 
 def _integrand(t, args):
@@ -313,10 +336,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
     # Every camera repeats the corners among its events (zero-length intervals).
-    fixed = pieces[0].shape[1] + len(partitions.events) * scene.corners()[0].shape[1] * (
-        scene.has_corners
-    )
-    budget = options.max_intervals or fixed + (union.shape[1] - fixed + 1) // 2
+    fixed = pieces[0].shape[1] + len(partitions.events) * _corner_slots(scene)
+    budget = _interval_budget(options.max_intervals, fixed, union.shape[1])
     used = jnp.sum(union < 1.0, axis=1)
     start, end = _intervals(union[:, :budget])
 
@@ -389,6 +410,18 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
                 "max_range_crossings",
             )
         )
+    tested = _interval_budget(
+        options.max_camera_intervals, _corner_slots(scene), partitions.events.shape[-1]
+    )
+    budgets.append(
+        (
+            jnp.sum(partitions.events < 1.0, axis=-1),
+            tested,
+            "event intervals of one camera",
+            # (the union of all cameras' intervals then needs more room too)
+            "max_camera_intervals=..., max_intervals",
+        )
+    )
     if crossovers is not None:
         budgets.append(
             (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")

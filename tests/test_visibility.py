@@ -968,10 +968,21 @@ def test_exceeded_interval_budget_raises():
         fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
 
 
+def test_exceeded_camera_interval_budget_raises():
+    options = ocp.VisibilityOptions(max_camera_intervals=2)
+    fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, options))
+    with pytest.raises(
+        Exception,
+        match=r"more event intervals of one camera on one curve than the budget of 2.*"
+        r"max_camera_intervals=\.\.\., max_intervals=",
+    ):
+        fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
+
+
 def test_interval_budget_does_not_change_q():
-    """The default max_intervals drops only padding: Q equals, to rounding, Q with every
-    event slot kept."""
-    everything = ocp.VisibilityOptions(max_intervals=10_000)
+    """The default max_intervals and max_camera_intervals drop only padding: Q equals, to
+    rounding, Q with every event slot kept and tested."""
+    everything = ocp.VisibilityOptions(max_intervals=10_000, max_camera_intervals=10_000)
     fn = jax.jit(lambda c: ocp.visibility(H.THREE, c, FS, everything))
     cams, (_, fs, *_) = scene_results("three", 2)
     assert abs(float(fn(jnp.asarray(cams[0]))) / fs[0] - 1) < 1e-14
@@ -1002,6 +1013,7 @@ def test_gauss_legendre_leibniz_rule():
     [
         ({"grid": 3}, "grid must be >= 8"),
         ({"max_intervals": 0}, "max_intervals must be a positive int"),
+        ({"max_camera_intervals": 1.5}, "max_camera_intervals must be a positive int"),
         ({"grid": 64.0}, "grid must be a positive int"),
         ({"max_tangents": 0}, "max_tangents must be a positive int"),
         ({"max_shadows": -2}, "max_shadows must be a positive int"),
