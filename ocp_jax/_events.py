@@ -112,20 +112,21 @@ def shadow_function(s, args):
     return cross(ray, sight), cross(ray, dx), norm(ray) * norm(sight)
 
 
+def crossover_terms(objective, group_a, group_b, x: Vec, dx: Vec, ddx: Vec):
+    """q(x, x', G_a) - q(x, x', G_b) for two camera groups (tuples of cameras), its
+    t-derivative (chain rule: one jvp along (x', x'')) and the scale |q_a| + |q_b|."""
+
+    def both(x, dx):
+        return objective.evaluate(x, dx, *group_a), objective.evaluate(x, dx, *group_b)
+
+    (qa, qb), (dqa, dqb) = jax.jvp(both, (x, dx), (dx, ddx))
+    return qa - qb, dqa - dqb, jnp.abs(qa) + jnp.abs(qb)
+
+
 def crossover_function(t, args):
-    """F(t) = q(x, x', G_a) - q(x, x', G_b) for two camera groups (tuples of cameras) and
-    its t-derivative (chain rule via jvp)."""
+    """F(t) = q(x, x', G_a) - q(x, x', G_b) and F'(t) (see `crossover_terms`)."""
     scene, group_a, group_b, objective = args
-    x, dx, ddx = scene.components(t)
-
-    def difference(x, dx):
-        return objective.evaluate(x, dx, *group_a) - objective.evaluate(x, dx, *group_b)
-
-    value, slope = jax.jvp(difference, (x, dx), (dx, ddx))
-    scale = jnp.abs(objective.evaluate(x, dx, *group_a)) + jnp.abs(
-        objective.evaluate(x, dx, *group_b)
-    )
-    return value, slope, scale
+    return crossover_terms(objective, group_a, group_b, *scene.components(t))
 
 
 def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations: int) -> Roots:
@@ -325,20 +326,15 @@ def crossover_times(
 ) -> Roots:
     """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15."""
     # Values on the grid from the sampled derivatives (no new curve evaluations).
-    frozen, ga, gb = jax.lax.stop_gradient((objective, group_a, group_b))
-
-    def difference(x, dx):
-        return frozen.evaluate(x, dx, *ga) - frozen.evaluate(x, dx, *gb)
+    frozen = jax.lax.stop_gradient((objective, group_a, group_b))
 
     def values_and_slopes(dx, ddx):
-        values, slopes = jax.jvp(difference, (samples.x, dx), (dx, ddx))
+        objective, ga, gb = frozen
+        values, slopes, scale = crossover_terms(objective, ga, gb, samples.x, dx, ddx)
         # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
         # q) either camera is the best one: count the node as just positive (by more
         # than the Hermite interpolant of the noise can dip), so that rounding noise
         # brackets no roots.
-        scale = jnp.abs(frozen.evaluate(samples.x, dx, *ga)) + jnp.abs(
-            frozen.evaluate(samples.x, dx, *gb)
-        )
         rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
         values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
         return values[:, None], slopes[:, None]

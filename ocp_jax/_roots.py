@@ -221,8 +221,7 @@ def implicit_root(fn, t, args):
 def _implicit_root_jvp(fn, primals, tangents):
     t, args = primals
     _, dargs = tangents
-    _, dvalue = jax.jvp(lambda a: fn(t, a)[0], (args,), (dargs,))
-    slope = fn(t, args)[1]
+    _, dvalue, slope = jax.jvp(lambda a: fn(t, a)[:2], (args,), (dargs,), has_aux=True)
     # Padded (invalid) roots may sit where dF/dt = 0: keep their tangents finite.
     slope = jnp.where(jnp.isfinite(slope) & (slope != 0), slope, 1.0)
     return t, -dvalue / slope
