@@ -83,12 +83,18 @@ class Scene(eqx.Module):
 
     def _map(self, fn, *args):
         """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
-        results are stacked along a leading curve axis."""
+        results are stacked along a leading curve axis. A curve alone in its group is
+        not vmapped (a batch of one only makes the program longer to trace)."""
         outputs, order = [], []
         for group in self._groups():
-            stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
-            rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
-            outputs.append(jax.vmap(fn)(stacked, *rows))
+            if len(group) == 1:
+                (i,) = group
+                out = fn(self.curves[i], *(a[i] for a in args))
+                outputs.append(jax.tree.map(lambda a: a[None], out))
+            else:
+                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+                rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
+                outputs.append(jax.vmap(fn)(stacked, *rows))
             order.extend(group)
         if len(outputs) == 1:
             return outputs[0]
