@@ -53,9 +53,7 @@ def _powers(t: Array, degree: int) -> list[Array]:
 def _bernstein_combination(tp, sp, degree: int, points: Array) -> Vec:
     """sum_i C(n,i) t^i (1-t)^(n-i) points[i] from precomputed powers, as an explicit sum
     (XLA's CPU dot is slow for such small shapes)."""
-    # The coordinates broadcast to the shape of t once, then split into the terms.
-    shape = tp[0].shape + (degree + 1,)
-    xs, ys = (jnp.unstack(jnp.broadcast_to(points[..., k], shape), axis=-1) for k in (0, 1))
+    xs, ys = jnp.unstack(points[..., 0], axis=-1), jnp.unstack(points[..., 1], axis=-1)
     x = y = 0.0
     for i in range(degree + 1):
         basis = math.comb(degree, i) * tp[i] * sp[degree - i]

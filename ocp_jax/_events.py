@@ -326,11 +326,10 @@ def crossover_times(
 ) -> Roots:
     """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15."""
     # Values on the grid from the sampled derivatives (no new curve evaluations).
-    frozen = jax.lax.stop_gradient((objective, group_a, group_b))
+    frozen, ga, gb = jax.lax.stop_gradient((objective, group_a, group_b))
 
     def values_and_slopes(dx, ddx):
-        objective, ga, gb = frozen
-        values, slopes, scale = crossover_terms(objective, ga, gb, samples.x, dx, ddx)
+        values, slopes, scale = crossover_terms(frozen, ga, gb, samples.x, dx, ddx)
         # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
         # q) either camera is the best one: count the node as just positive (by more
         # than the Hermite interpolant of the noise can dip), so that rounding noise
