@@ -16,6 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._jvp import instantiate, is_zero, perturbed_jvp
+
 
 def _nodes(start, end, order: int):
     nodes, weights = np.polynomial.legendre.leggauss(order)
@@ -39,13 +41,16 @@ def gauss_legendre(
     return half * jnp.sum(weights * f(t, args), -1)
 
 
-@gauss_legendre.defjvp
+@functools.partial(gauss_legendre.defjvp, symbolic_zeros=True)
 def _gauss_legendre_jvp(f, order, primals, tangents):
     start, end, args = primals
     dstart, dend, dargs = tangents
     t, weights, half = _nodes(start, end, order)
-    values, dvalues = jax.jvp(lambda a: f(t, a), (args,), (dargs,))
-    at_end = f(end[..., None], args)[..., 0]
-    at_start = f(start[..., None], args)[..., 0]
+    values, dvalues = perturbed_jvp(lambda a: f(t, a), args, dargs)
     integral = half * jnp.sum(weights * values, -1)
-    return integral, half * jnp.sum(weights * dvalues, -1) + at_end * dend - at_start * dstart
+    derivative = half * jnp.sum(weights * dvalues, -1)
+    if not (is_zero(dstart) and is_zero(dend)):  # the moving ends (Eq. 5.9)
+        at_ends = f(jnp.stack([start, end], -1), args)
+        dend, dstart = instantiate(dend, end), instantiate(dstart, start)
+        derivative = derivative + at_ends[..., 1] * dend - at_ends[..., 0] * dstart
+    return integral, derivative

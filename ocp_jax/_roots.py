@@ -26,6 +26,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
+from ._jvp import perturbed_jvp
+
 
 class Brackets(NamedTuple):
     """Packed root brackets, shape (..., R) each."""
@@ -217,11 +219,11 @@ def implicit_root(fn, t, args):
     return t
 
 
-@implicit_root.defjvp
+@functools.partial(implicit_root.defjvp, symbolic_zeros=True)
 def _implicit_root_jvp(fn, primals, tangents):
     t, args = primals
     _, dargs = tangents
-    _, dvalue, slope = jax.jvp(lambda a: fn(t, a)[:2], (args,), (dargs,), has_aux=True)
+    _, dvalue, slope = perturbed_jvp(lambda a: fn(t, a)[:2], args, dargs, has_aux=True)
     # Padded (invalid) roots may sit where dF/dt = 0: keep their tangents finite.
     slope = jnp.where(jnp.isfinite(slope) & (slope != 0), slope, 1.0)
     return t, -dvalue / slope

@@ -1,0 +1,39 @@
+"""Forward-mode derivatives in the package's `custom_jvp` rules, over perturbed inputs only.
+
+A `custom_jvp` rule defined with `symbolic_zeros=True` receives a `SymbolicZero` for
+every input that carries no tangent: under `jax.grad` with respect to the cameras the
+whole scene is such an input. With the default `symbolic_zeros=False` those tangents
+arrive as arrays of zeros, and the rule's `jax.jvp` differentiates the curves with respect
+to their control points on them: work that XLA does not remove (x * 0 is not 0 in
+floating point), in the forward pass and in the compiled program.
+"""
+
+import jax
+import jax.numpy as jnp
+from jax.custom_derivatives import SymbolicZero
+
+
+def is_zero(tangent) -> bool:
+    return isinstance(tangent, SymbolicZero)
+
+
+def instantiate(tangent, like):
+    """`tangent` as an array: zeros like `like` where it is a symbolic zero."""
+    return jnp.zeros_like(like) if is_zero(tangent) else tangent
+
+
+def perturbed_jvp(fn, primals, tangents, has_aux: bool = False):
+    """`jax.jvp(fn, (primals,), (tangents,), has_aux)` for a pytree `primals` whose
+    tangent leaves may be symbolic zeros: those leaves are held constant."""
+    leaves, treedef = jax.tree.flatten(primals)
+    tangent_leaves = treedef.flatten_up_to(tangents)
+    live = [not is_zero(d) for d in tangent_leaves]
+
+    def of_live(*live_leaves):
+        fill = iter(live_leaves)
+        full = [next(fill) if keep else leaf for leaf, keep in zip(leaves, live)]
+        return fn(jax.tree.unflatten(treedef, full))
+
+    live_primals = [leaf for leaf, keep in zip(leaves, live) if keep]
+    live_tangents = [d for d, keep in zip(tangent_leaves, live) if keep]
+    return jax.jvp(of_live, live_primals, live_tangents, has_aux=has_aux)
