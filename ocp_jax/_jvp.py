@@ -4,8 +4,8 @@ A `custom_jvp` rule defined with `symbolic_zeros=True` receives a `SymbolicZero`
 every input that carries no tangent: under `jax.grad` with respect to the cameras the
 whole scene is such an input. With the default `symbolic_zeros=False` those tangents
 arrive as arrays of zeros, and the rule's `jax.jvp` differentiates the curves with respect
-to their control points on them: work that XLA does not remove (x * 0 is not 0 in
-floating point), in the forward pass and in the compiled program.
+to their control points on them: code that is traced, lowered and only then removed by
+XLA (about 10% of the jaxpr of value+grad with respect to the cameras).
 """
 
 import jax
