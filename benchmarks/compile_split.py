@@ -2,26 +2,23 @@
 
     python benchmarks/compile_split.py
 
-Per scene and number of cameras k (the cameras of evaluate.py): the seconds spent
-tracing to a jaxpr, lowering to StableHLO and compiling with XLA (each in a fresh jit),
-the jaxpr's equation count (sub-jaxprs included), and the compiled program's top-level
-kernels (the instructions of its entry computation that run, loops counted once), whose
-launches bound the run time of small scenes.
+Per row of evaluate.py's table (scene and number of cameras k): the seconds spent
+tracing to a jaxpr, lowering to StableHLO and compiling with XLA, the jaxpr's equation
+count (sub-jaxprs included), and the compiled program's top-level kernels (the
+instructions of its entry computation that run, loops counted once), whose launches
+bound the run time of small scenes.
 """
 
 import re
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jax.extend.core import jaxprs_in_params
 
 jax.config.update("jax_enable_x64", True)
 
-import ocp_jax as ocp  # noqa: E402
-from evaluate import OBJECTIVE, rectangle_cameras, ring_cameras  # noqa: E402
-from ocp_jax import scenes  # noqa: E402
+from evaluate import VALUE_AND_GRAD, cases, print_row  # noqa: E402
 
 _NOT_KERNELS = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast"}
 
@@ -37,9 +34,8 @@ def top_level_kernels(hlo_text: str) -> int:
 
 
 def split(scene, cameras):
-    fn = jax.jit(jax.value_and_grad(lambda s, c: ocp.visibility(s, c, OBJECTIVE), 1))
     start = time.perf_counter()
-    traced = fn.trace(scene, cameras)
+    traced = VALUE_AND_GRAD.trace(scene, cameras)
     traced_s = time.perf_counter()
     lowered = traced.lower()
     lowered_s = time.perf_counter()
@@ -56,19 +52,14 @@ def split(scene, cameras):
 
 def main():
     jax.jit(lambda x: x + 1)(1.0)  # JAX's own start-up is not the scene's compile time
-    rng = np.random.default_rng(0)
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, value+grad")
     header = ["scene", "k", "trace s", "lower s", "XLA s", "total s", "equations", "kernels"]
     widths = [8, 2, 8, 8, 7, 8, 10, 8]
-    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
-    cases = [("circle", scenes.circle()), ("banana", scenes.banana()), ("blobs10", scenes.blobs(10))]
-    for name, scene in cases:
-        for k in (1, 2, 4):
-            cameras = rectangle_cameras(k, rng) if name == "banana" else ring_cameras(scene, k)
-            trace, lower, xla, eqns, kernels = split(scene, jnp.asarray(cameras))
-            cells = [name, k, f"{trace:.2f}", f"{lower:.2f}", f"{xla:.2f}"]
-            cells += [f"{trace + lower + xla:.1f}", eqns, kernels]
-            print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
+    print_row(header, widths)
+    for name, scene, cameras in cases(np.random.default_rng(0)):
+        trace, lower, xla, eqns, kernels = split(scene, cameras)
+        cells = [name, cameras.shape[0], f"{trace:.2f}", f"{lower:.2f}", f"{xla:.2f}"]
+        print_row(cells + [f"{trace + lower + xla:.1f}", eqns, kernels], widths)
 
 
 if __name__ == "__main__":

@@ -65,6 +65,28 @@ def timed(fn, *args, budget=0.5, repeats=3):
     return min(medians)
 
 
+def cases(rng, quick: bool = False):
+    """The rows of the table, (scene name, scene, cameras) for k = 1, 2, 4 cameras: on the
+    banana drawn from `rng` on its rectangle, on the others a ring around the scene."""
+    scenes_ = [
+        ("circle", scenes.circle()),
+        ("banana", scenes.banana()),
+        ("blobs3", scenes.blobs(3)),
+        ("blobs10", scenes.blobs(10)),
+    ]
+    for name, scene in scenes_:
+        for k in (1,) if quick else (1, 2, 4):
+            if name == "banana":
+                cameras = rectangle_cameras(k, rng)
+            else:
+                cameras = ring_cameras(scene, k)
+            yield name, scene, jnp.asarray(cameras)
+
+
+def print_row(cells, widths):
+    print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
+
+
 VALUE = jax.jit(lambda s, c: ocp.visibility(s, c, OBJECTIVE))
 VALUE_AND_GRAD = jax.jit(jax.value_and_grad(lambda s, c: ocp.visibility(s, c, OBJECTIVE), 1))
 
@@ -101,21 +123,10 @@ def main():
     header = ["scene", "k", "compile s", "Q us", "Q+grad us"]
     header += ["NumPy ref ms", "speed-up", "|rel diff|"]
     widths = [10, 2, 10, 9, 10, 13, 9, 10]
-    print("  ".join(h.rjust(w) for h, w in zip(header, widths)))
-    cases = [
-        ("circle", scenes.circle()),
-        ("banana", scenes.banana()),
-        ("blobs3", scenes.blobs(3)),
-        ("blobs10", scenes.blobs(10)),
-    ]
-    for name, scene in cases:
-        for k in (1,) if args.quick else (1, 2, 4):
-            if name == "banana":
-                cameras = rectangle_cameras(k, rng)
-            else:
-                cameras = ring_cameras(scene, k)
-            cells, _ = row(name, scene, cameras, reference=not args.quick)
-            print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
+    print_row(header, widths)
+    for name, scene, cameras in cases(rng, args.quick):
+        cells, _ = row(name, scene, cameras, reference=not args.quick)
+        print_row(cells, widths)
 
     banana = scenes.banana()
     batch = jnp.asarray(rectangle_cameras(1024, rng)[:, None, :])  # (1024, 1, 2)

@@ -9,17 +9,11 @@ XLA (about 10% of the jaxpr of value+grad with respect to the cameras).
 """
 
 import jax
-import jax.numpy as jnp
 from jax.custom_derivatives import SymbolicZero
 
 
 def is_zero(tangent) -> bool:
     return isinstance(tangent, SymbolicZero)
-
-
-def instantiate(tangent, like):
-    """`tangent` as an array: zeros like `like` where it is a symbolic zero."""
-    return jnp.zeros_like(like) if is_zero(tangent) else tangent
 
 
 def perturbed_jvp(fn, primals, tangents, has_aux: bool = False):

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._jvp import instantiate, is_zero, perturbed_jvp
+from ._jvp import is_zero, perturbed_jvp
 
 
 def _nodes(start, end, order: int):
@@ -50,7 +50,9 @@ def _gauss_legendre_jvp(f, order, primals, tangents):
     integral = half * jnp.sum(weights * values, -1)
     derivative = half * jnp.sum(weights * dvalues, -1)
     if not (is_zero(dstart) and is_zero(dend)):  # the moving ends (Eq. 5.9)
-        at_ends = f(jnp.stack([start, end], -1), args)
-        dend, dstart = instantiate(dend, end), instantiate(dstart, start)
-        derivative = derivative + at_ends[..., 1] * dend - at_ends[..., 0] * dstart
+        at_start, at_end = jnp.unstack(f(jnp.stack([start, end], -1), args), axis=-1)
+        if not is_zero(dend):
+            derivative = derivative + at_end * dend
+        if not is_zero(dstart):
+            derivative = derivative - at_start * dstart
     return integral, derivative
