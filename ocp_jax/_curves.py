@@ -52,13 +52,15 @@ def _powers(t: Array, degree: int) -> list[Array]:
 
 def _bernstein_combination(tp, sp, degree: int, points: Array) -> Vec:
     """sum_i C(n,i) t^i (1-t)^(n-i) points[i] from precomputed powers, as an explicit sum
-    (XLA's CPU dot is slow for such small shapes)."""
-    xs, ys = jnp.unstack(points[..., 0], axis=-1), jnp.unstack(points[..., 1], axis=-1)
+    (XLA's CPU dot is slow for such small shapes). The coordinates are split from the
+    flattened points: splitting a column (points[..., 0]) first makes XLA materialise it,
+    one kernel per column and call, even inside loops."""
+    coordinates = jnp.unstack(points.reshape(points.shape[:-2] + (-1,)), axis=-1)
     x = y = 0.0
     for i in range(degree + 1):
         basis = math.comb(degree, i) * tp[i] * sp[degree - i]
-        x = x + basis * xs[i]
-        y = y + basis * ys[i]
+        x = x + basis * coordinates[2 * i]
+        y = y + basis * coordinates[2 * i + 1]
     return Vec(x, y)
 
 
