@@ -117,6 +117,7 @@ def grid_brackets(
       edge), only rounding noise, and is skipped.
     """
     h = jnp.diff(t_nodes)
+    cells = h.shape[0]
     f0, f1 = cell_ends(values)
     d0, d1 = cell_ends(slopes)
     h_cells = jnp.broadcast_to(h, f0.shape)
@@ -141,23 +142,24 @@ def grid_brackets(
     # Packed slots come first (`nonzero`); the others are fill.
     candidate = jnp.broadcast_to(jnp.arange(budget), index.shape) < count[..., None]
 
-    # Recompute the bracket of each packed slot from its cell's values only, gathered
-    # in one go (every array gathered separately is a kernel of its own on CPU).
+    # Recompute the bracket of each packed slot from its cell's values only.
     cell_index = index // 2
-    per_cell = jnp.stack(jnp.broadcast_arrays(f0, f1, d0, d1, t_nodes[:-1], h), -1)
-    per_cell = per_cell.reshape(batch + (-1, 6))
-    *cell_values, start, width = jnp.unstack(
-        jnp.take_along_axis(per_cell, cell_index[..., None], -2), axis=-1
-    )
-    lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, width, index % 2 == 1)
+    cell = cell_index % cells
+
+    def pick(a):
+        return jnp.take_along_axis(a.reshape(batch + (-1,)), cell_index, -1)
+
+    cell_values = (pick(f0), pick(f1), pick(d0), pick(d1), h[cell])
+    lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, index % 2 == 1)
     # Initial guess: regula falsi, then two Newton steps on the Hermite cubic (an
     # O(h^4) approximation of F), so that few steps on F itself are needed.
     guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / safe_divisor(f_lo - f_hi))
-    a1, a2, a3 = _hermite_coefficients(*cell_values, width)
+    a1, a2, a3 = _hermite_coefficients(*cell_values)
     for _ in range(2):
         p = ((a3 * guess + a2) * guess + a1) * guess + cell_values[0]
         dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
         guess = jnp.clip(guess - p / safe_divisor(dp), lo, hi)
+    start, width = t_nodes[cell], h[cell]
     return Brackets(
         start + width * lo,
         start + width * hi,
@@ -179,20 +181,17 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     only once an iterate has confirmed the sign change (F of the other sign than at the
     bracket's start) or |F| <= 1e3 eps scale at the end.
     """
-    # The loop state is one stacked array (lo, hi, t, confirmed, sign at lo, candidate),
-    # updated by one kernel per step: on CPU every array of a loop's carry costs a kernel
-    # launch per step, which for a few dozen roots is most of the time.
+    # Each array of the state is a carry of its own: one stacked carry launches fewer
+    # kernels per step, but under vmap XLA then evaluates F once per stacked row (the
+    # vmapped banana batch of benchmarks/evaluate.py ran about 20% slower).
+    lo, hi, t = brackets.lo, brackets.hi, brackets.guess
     confirmed = ~brackets.turning
-    fields = (brackets.lo, brackets.hi, brackets.guess, confirmed, brackets.sign_lo)
-    dtype = brackets.lo.dtype
-    state = jnp.stack([*(f.astype(dtype) for f in fields), brackets.candidate.astype(dtype)])
-    eps = jnp.finfo(dtype).eps
+    eps = jnp.finfo(t.dtype).eps
 
     def step(carry):
-        i, state, _ = carry
-        lo, hi, t, confirmed, sign_lo, candidate = state
+        i, lo, hi, t, confirmed, _ = carry
         value, slope, _ = fn(t, args)
-        same = jnp.sign(value) == sign_lo
+        same = jnp.sign(value) == brackets.sign_lo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
         newton = t - value / safe_divisor(slope)
@@ -201,16 +200,15 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
         # (XLA may round F differently where the sign test and the step use it): stay.
         settling = jnp.abs(newton - t) <= 4 * eps
         new = jnp.where(inside, newton, jnp.where(settling, t, 0.5 * (lo + hi)))
-        confirmed = jnp.where(same, confirmed, 1.0)
-        settled = jnp.all((jnp.abs(new - t) <= 4 * eps) | (candidate == 0))
-        return i + 1, jnp.stack([lo, hi, new, confirmed, sign_lo, candidate]), settled
+        settled = jnp.all((jnp.abs(new - t) <= 4 * eps) | ~brackets.candidate)
+        return i + 1, lo, hi, new, confirmed | ~same, settled
 
     def running(carry):
-        i, _, settled = carry
+        i, *_, settled = carry
         return (i < iterations) & ~settled
 
-    _, state, _ = jax.lax.while_loop(running, step, (0, state, False))
-    t, confirmed = state[2], state[3] == 1
+    carry = (0, lo, hi, t, confirmed, False)
+    _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
     value, _, scale = fn(t, args)
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
