@@ -1,0 +1,129 @@
+"""Speed of git revisions side by side, measured in turn so that outside load falls on all.
+
+    python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3]
+
+Each revision is checked out in a temporary git worktree and measured in a fresh process
+(its `ocp_jax`, this checkout's timer and cases from evaluate.py), revision after
+revision, `--rounds` times. Prints per measurement the best round of every revision and
+the range over rounds. On a machine whose speed drifts between runs, only such
+interleaved comparisons tell a change from the drift; evaluate.py gives the absolute
+figures on a quiet machine.
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+# (label, unit, better): the measurements `measure` prints, in this order.
+MEASUREMENTS = [
+    ("circle Q", "us", min),
+    ("circle value+grad", "us", min),
+    ("banana Q", "us", min),
+    ("banana value+grad", "us", min),
+    ("blobs10 Q", "us", min),
+    ("banana value+grad compile", "s", min),
+    ("banana batch of 1024, jit(vmap)", "/s", max),
+]
+
+
+def measure() -> None:
+    """Print the measurements of the `ocp_jax` on sys.path as one JSON line."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    sys.path.insert(0, HERE)
+    from evaluate import OBJECTIVE, cases, ocp, rectangle_cameras, scenes, timed
+
+    values = {}
+    for name, scene, cameras in cases(np.random.default_rng(0), quick=True):
+        if name == "blobs3":
+            continue
+
+        def q(c, scene=scene):
+            return ocp.visibility(scene, c, OBJECTIVE)
+
+        value = jax.jit(q)
+        jax.block_until_ready(value(cameras))
+        values[f"{name} Q"] = 1e6 * timed(value, cameras)
+        if name != "blobs10":
+            both = jax.jit(jax.value_and_grad(q))
+            start = time.perf_counter()
+            jax.block_until_ready(both(cameras))
+            if name == "banana":
+                values["banana value+grad compile"] = time.perf_counter() - start
+            values[f"{name} value+grad"] = 1e6 * timed(both, cameras)
+    banana = scenes.banana()
+    batch = jnp.asarray(rectangle_cameras(1024, np.random.default_rng(1))[:, None, :])
+    per_set = jax.jit(jax.vmap(jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE))))
+    jax.block_until_ready(per_set(batch))
+    values["banana batch of 1024, jit(vmap)"] = 1024 / timed(per_set, batch, budget=2.0)
+    print(json.dumps({"ocp_jax": ocp.__file__, **values}))
+
+
+def run_revision(tree: str) -> dict:
+    """The measurements of the checkout at `tree`, from a fresh process."""
+    environment = dict(os.environ, PYTHONPATH=tree, JAX_ENABLE_X64="1")
+    out = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), "--measure"],
+        cwd=tree, env=environment, capture_output=True, text=True, check=True,
+    ).stdout
+    values = json.loads(out.strip().splitlines()[-1])
+    if not values.pop("ocp_jax").startswith(tree):
+        raise RuntimeError(f"the measurement imported an ocp_jax outside {tree}")
+    return values
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("revisions", nargs="*", help="git revisions (commits, branches)")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.measure:
+        return measure()
+    if not args.revisions:
+        parser.error("name at least one revision, e.g. HEAD~1 HEAD")
+    repository = subprocess.run(
+        ["git", "rev-parse", "--show-toplevel"], cwd=HERE, capture_output=True, text=True,
+        check=True,
+    ).stdout.strip()
+    git = ["git", "-C", repository]
+    with tempfile.TemporaryDirectory() as scratch:
+        trees = {}
+        for revision in args.revisions:
+            tree = os.path.realpath(os.path.join(scratch, f"tree{len(trees)}"))
+            subprocess.run(git + ["worktree", "add", "--detach", "-q", tree, revision], check=True)
+            trees[revision] = tree
+        try:
+            rounds = {revision: [] for revision in trees}
+            for i in range(args.rounds):
+                for revision, tree in trees.items():
+                    rounds[revision].append(run_revision(tree))
+                    print(f"round {i + 1}/{args.rounds}: {revision} measured", file=sys.stderr)
+        finally:
+            for tree in trees.values():
+                subprocess.run(git + ["worktree", "remove", "--force", tree], check=False)
+
+    width = max(12, *(len(r) for r in trees))
+    print(f"{args.rounds} interleaved rounds; each cell: best round (range over rounds)")
+    print(f"{'':34s}" + "".join(f"{r:>{width + 16}s}" for r in trees))
+    for label, unit, better in MEASUREMENTS:
+        cells = []
+        for revision in trees:
+            values = [r[label] for r in rounds[revision]]
+            precision = 1 if unit == "s" else 0
+            cells.append(
+                f"{better(values):.{precision}f} ({min(values):.{precision}f}-"
+                f"{max(values):.{precision}f})"
+            )
+        print(f"{label + ' ' + unit:34s}" + "".join(f"{c:>{width + 16}s}" for c in cells))
+
+
+if __name__ == "__main__":
+    main()
