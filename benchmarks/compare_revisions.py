@@ -68,7 +68,7 @@ def measure() -> None:
 
 def run_revision(tree: str) -> dict:
     """The measurements of the checkout at `tree`, from a fresh process."""
-    environment = dict(os.environ, PYTHONPATH=tree, JAX_ENABLE_X64="1")
+    environment = dict(os.environ, PYTHONPATH=tree)
     out = subprocess.run(
         [sys.executable, os.path.abspath(__file__), "--measure"],
         cwd=tree, env=environment, capture_output=True, text=True, check=True,
