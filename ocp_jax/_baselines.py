@@ -28,7 +28,7 @@ from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objecti
 from ._optimize import OptimizeResult, _best, _problem_and_starts, _tolerance
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, valid_visibility, visibility
+from ._visibility import VisibilityOptions, valid_visibility
 
 __all__ = ["SearchResult", "exhaustive", "greedy", "slsqp"]
 
@@ -115,11 +115,18 @@ def _admissible_candidates(scene, placement: AbstractPlacement, resolution: int)
     return rows, layout
 
 
-def _search_result(scene, objective, options, rows, layout, evaluations, seconds, candidates, stages):
-    cameras = _from_rows(jnp.asarray(rows), layout)
+def _search_result(rows, value, layout, evaluations, seconds, candidates, stages):
+    """The result of a search whose best set is `rows` with Q = `value` (as the batched
+    evaluator computed it: no second compilation of Q for one set)."""
+    if not np.isfinite(value):
+        raise RuntimeError(
+            "ocp_jax: Q is undefined for every candidate set (a camera inside an object, on "
+            "a curve or too close to it, or an exceeded budget); raise the resolution or "
+            "move the placement away from the objects."
+        )
     return SearchResult(
-        cameras=cameras,
-        value=visibility(scene, cameras, objective, options),
+        cameras=_from_rows(jnp.asarray(rows), layout),
+        value=jnp.asarray(value),
         num_evaluations=int(evaluations),
         seconds=seconds,
         candidates=jnp.asarray(candidates),
@@ -163,9 +170,7 @@ def greedy(
             [np.broadcast_to(chosen, (len(candidates), *chosen.shape)), candidates[:, None]], 1
         )
     seconds = time.perf_counter() - clock
-    return _search_result(
-        scene, objective, options, chosen, layout, evaluations, seconds, candidates, stages
-    )
+    return _search_result(chosen, values.max(), layout, evaluations, seconds, candidates, stages)
 
 
 def exhaustive(
@@ -203,7 +208,7 @@ def exhaustive(
         stages.append(best_value)
     seconds = time.perf_counter() - clock
     return _search_result(
-        scene, objective, options, best_set, layout, total, seconds, candidates, (np.array(stages),)
+        best_set, best_value, layout, total, seconds, candidates, (np.array(stages),)
     )
 
 

@@ -39,7 +39,7 @@ from ._objectives import (
 )
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, valid_visibility, visibility
+from ._visibility import VisibilityOptions, valid_visibility
 
 __all__ = ["OptimizeResult", "optimize"]
 
@@ -216,7 +216,8 @@ class OptimizeResult(eqx.Module):
 
 
 def _best(problem, params, status, num_steps, evaluations, seconds, history, paths, tolerance):
-    """The best admissible start, its Q checked by `visibility`."""
+    """The best admissible start and its Q (from `_values`, compiled already for the
+    starts: no second compilation of Q for one set)."""
     placement, scene = problem.placement, problem.scene
     q, valid = _values(problem, params)
     cameras = jax.vmap(placement.cameras)(params)
@@ -233,7 +234,7 @@ def _best(problem, params, status, num_steps, evaluations, seconds, history, pat
     chosen = jax.tree.map(lambda a: a[best], cameras)
     return OptimizeResult(
         cameras=chosen,
-        value=visibility(scene, chosen, problem.objective, problem.options),
+        value=q[best],
         start_cameras=cameras,
         start_values=start_values,
         start_status=status,

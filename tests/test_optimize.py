@@ -209,7 +209,8 @@ np.save("{out}", np.asarray(result.start_cameras))
 def test_starts_sharded_over_two_devices(tmp_path):
     """The same starts give the same results laid out over two (host) devices."""
     out = tmp_path / "cameras.npy"
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    flags = os.environ.get("XLA_FLAGS", "")  # conftest's optimisation level too
+    env = {**os.environ, "XLA_FLAGS": f"{flags} --xla_force_host_platform_device_count=2"}
     subprocess.run([sys.executable, "-c", SHARDED.format(out=out)], check=True, env=env)
     np.testing.assert_allclose(np.load(out), square_result().start_cameras[:3], atol=1e-9)
 
