@@ -170,6 +170,15 @@ def test_greedy_drops_inadmissible_candidates():
     np.testing.assert_allclose(np.abs(np.asarray(result.cameras[0])), [3.0, 3.0], atol=1e-12)
 
 
+def test_searches_where_every_set_is_undefined_raise():
+    """No candidate set has a Q (a circle has two tangents from every camera, over a
+    budget of one): a clear error, not a value of -inf."""
+    tight = ocp.VisibilityOptions(max_tangents=1)
+    for search in (ocp.greedy, ocp.exhaustive):
+        with pytest.raises(RuntimeError, match="undefined for every candidate set"):
+            search(CIRCLE, ocp.VisibleLength(), BOX, 1, resolution=3, chunk=16, options=tight)
+
+
 def test_slsqp_from_the_same_starts():
     result = ocp.slsqp(
         TWO_CIRCLES, ocp.Foreshortened(), SQUARE, 2, starts=square_starts(), max_steps=60
