@@ -15,7 +15,6 @@ Each root carries the implicit-function derivative (see `_roots.py`); for tangen
 shadow times with respect to the camera it equals Eqs. 5.28/5.32 and 5.17/5.20.
 """
 
-import functools
 from typing import NamedTuple
 
 import jax
@@ -23,7 +22,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._jvp import is_zero, perturbed_jvp
 from ._roots import grid_brackets, solve_roots
 from ._vec import Vec, add, cross, dot, norm, sub
 
@@ -74,24 +72,16 @@ def materialize(tree):
     XLA duplicates cheap elementwise producers (a curve evaluation is ~100 multiply-adds)
     into every consumer fusion, so a curve sampled once and broadcast against many rays
     would be re-evaluated per element. `optimization_barrier` does not survive the CPU
-    pipeline; a while loop whose trip count depends on the data (one trip) does. The
-    leaves (of one dtype) pass through it as one flat array: every array of a loop's
-    carry is a kernel launch of its own.
+    pipeline; a while loop whose trip count depends on the data (one trip) does.
     """
-    leaves, treedef = jax.tree.flatten(tree)
-    if len({leaf.dtype for leaf in leaves}) > 1:
-        raise TypeError("materialize takes leaves of one dtype.")
-    flat = jnp.concatenate([jnp.ravel(leaf) for leaf in leaves])
-    start = jnp.isnan(flat[-1]).astype(jnp.int32)  # 0 unless NaN
+    leaves = jax.tree.leaves(tree)
+    start = jnp.isnan(leaves[-1].ravel()[0]).astype(jnp.int32)  # 0 unless NaN
 
     def body(carry):
         i, values = carry
-        return i + 1, jnp.where(i > 1, values + values, values)
+        return i + 1, jax.tree.map(lambda v: jnp.where(i > 1, v + v, v), values)
 
-    flat = jax.lax.while_loop(lambda c: c[0] < 1, body, (start, flat))[1]
-    ends = np.cumsum([leaf.size for leaf in leaves])[:-1]
-    parts = jnp.split(flat, ends)
-    return treedef.unflatten([p.reshape(leaf.shape) for p, leaf in zip(parts, leaves)])
+    return jax.lax.while_loop(lambda c: c[0] < 1, body, (start, tree))[1]
 
 
 @materialize.defjvp
@@ -164,30 +154,8 @@ class RaySources(NamedTuple):
     tangent: Bool[Array, " l"]  # a tangency point (the ray touches its own curve)
 
 
-@jax.custom_jvp
-def curve_points(scene, t) -> Vec:
-    """x_i(t[i]) for every curve i, differentiated in t by dx = x'(t) dt: autodiff
-    through the curve evaluation would store every power of t for reverse mode, one
-    kernel each on CPU."""
-    return scene.components(t)[0]
-
-
-@functools.partial(curve_points.defjvp, symbolic_zeros=True)
-def _curve_points_jvp(primals, tangents):
-    scene, t = primals
-    dscene, dt = tangents
-    x, dx, _ = scene.components(t)
-    moved = Vec(jnp.zeros_like(x.x), jnp.zeros_like(x.y))
-    if not is_zero(dt):
-        moved = Vec(dx.x * dt, dx.y * dt)
-    if not is_zero(dscene):
-        moved = add(moved, perturbed_jvp(lambda s: s.components(t)[0], scene, dscene)[1])
-    return x, moved
-
-
 def tangency_points(scene, tangents: Roots) -> RaySources:
-    x = curve_points(scene, tangents.t)
-    ddx = scene.components(jax.lax.stop_gradient(tangents.t))[2]
+    x, _, ddx = scene.components(tangents.t)
     m, r = tangents.t.shape
     flat = lambda v: v.map(jnp.ravel)  # noqa: E731
     curve = jnp.repeat(jnp.arange(m), r)
@@ -274,15 +242,7 @@ def shadow_times(
     has a simple root at its corner T, a grid node, where g is set to exactly 0.
     """
     c0 = jax.lax.stop_gradient(camera)
-    # Each source's ray and what the search needs of it, stacked (l, 8): gathered for
-    # the chosen rays in one go (every gathered array is a kernel of its own on CPU).
-    ray = sub(tangency.point, camera)
-    fields = (ray.x, ray.y, tangency.curvature.x, tangency.curvature.y, tangency.t)
-    fields += (tangency.depth, tangency.curve, tangency.tangent)
-    sources = materialize(
-        jax.lax.stop_gradient(jnp.stack([f.astype(ray.x.dtype) for f in fields], -1))
-    )
-    ray = Vec(sources[:, 0], sources[:, 1])  # (l,)
+    ray = materialize(jax.lax.stop_gradient(sub(tangency.point, camera)))  # (l,)
     ray_l = ray.map(lambda a: a[None])  # (1, l)
     length = norm(ray_l)
     centre, radius = bounding_discs(samples)
@@ -296,23 +256,20 @@ def shadow_times(
     rays = min(budget, passes.shape[1])
     pick = jax.vmap(lambda p: jnp.nonzero(p, size=rays, fill_value=0)[0])(passes)  # (m, rays)
     ray_count = passes.sum(1)
-    # Picked slots come first (`nonzero`); the others are fill.
-    chosen = jnp.broadcast_to(jnp.arange(rays), pick.shape) < ray_count[:, None]
-    ray_x, ray_y, bend_x, bend_y, source_t, start, curve, tangent = jnp.unstack(
-        sources[pick][..., None, :], axis=-1
-    )  # (m, rays, 1) each
+    slot = jnp.broadcast_to(jnp.arange(rays), pick.shape)
+    chosen = jnp.take_along_axis(passes, pick, 1) & (slot < ray_count[:, None])
 
-    ray_grid = Vec(ray_x, ray_y)
+    ray_grid = ray.map(lambda a: a[pick][..., None])  # (m, rays, 1)
     sight = sub(samples.x, c0).map(lambda a: a[:, None])  # (m, 1, N + 1)
     values = cross(ray_grid, sight)
 
-    u = samples.t[None, None] - source_t
+    u = samples.t[None, None] - tangency.t[pick][..., None]
     u = u - jnp.round(u)
     near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
     u = jnp.where(near, 1.0, u)
-    own = curve == jnp.arange(pick.shape[0])[:, None, None]
-    tangent = own & (tangent == 1)
-    curvature = cross(ray_grid, Vec(bend_x, bend_y))
+    own = (tangency.curve[pick] == jnp.arange(pick.shape[0])[:, None])[..., None]
+    tangent = own & tangency.tangent[pick][..., None]
+    curvature = cross(ray_grid, tangency.curvature.map(lambda a: a[pick][..., None]))
     r = jnp.where(near, 0.5 * curvature, values / u**2)
     # A corner's ray has a simple root at the corner, a grid node: make it exactly 0
     # there (an event at the corner, which is one already).
@@ -325,6 +282,7 @@ def shadow_times(
     slopes = samples.at_nodes(slopes_at)
 
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
+    start = tangency.depth[pick][..., None]
     beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
     # Rays along a straight edge make F vanish on it up to rounding (deflated values
     # on a tangency point's own curve are exempt).
