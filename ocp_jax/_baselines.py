@@ -121,8 +121,9 @@ def _search_result(rows, value, layout, evaluations, seconds, candidates, stages
     if not np.isfinite(value):
         raise RuntimeError(
             "ocp_jax: Q is undefined for every candidate set (a camera inside an object, on "
-            "a curve or too close to it, or an exceeded budget); raise the resolution or "
-            "move the placement away from the objects."
+            "a curve or too close to it, or an exceeded root budget): move the placement "
+            "away from the objects, or pass options=ocp.VisibilityOptions(...) with larger "
+            "budgets."
         )
     return SearchResult(
         cameras=_from_rows(jnp.asarray(rows), layout),
