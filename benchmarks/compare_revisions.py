@@ -13,6 +13,7 @@ figures on a quiet machine.
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -94,13 +95,17 @@ def main():
         check=True,
     ).stdout.strip()
     git = ["git", "-C", repository]
+    # a SIGTERM unwinds like Ctrl-C, so that the worktrees are removed either way
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit("compare_revisions: terminated"))
     with tempfile.TemporaryDirectory() as scratch:
         trees = {}
-        for revision in args.revisions:
-            tree = os.path.realpath(os.path.join(scratch, f"tree{len(trees)}"))
-            subprocess.run(git + ["worktree", "add", "--detach", "-q", tree, revision], check=True)
-            trees[revision] = tree
         try:
+            for revision in args.revisions:
+                tree = os.path.realpath(os.path.join(scratch, f"tree{len(trees)}"))
+                subprocess.run(
+                    git + ["worktree", "add", "--detach", "-q", tree, revision], check=True
+                )
+                trees[revision] = tree
             rounds = {revision: [] for revision in trees}
             for i in range(args.rounds):
                 for revision, tree in trees.items():
