@@ -3,7 +3,7 @@
     python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3]
 
 Each revision is checked out in a temporary git worktree and measured in a fresh process
-(its `ocp_jax`, this checkout's timer and cases from evaluate.py), revision after
+(its `ocp_jax`; this checkout's evaluate.py: its k = 1 rows and its batch), revision after
 revision, `--rounds` times. Prints per measurement the best round of every revision and
 the range over rounds. On a machine whose speed drifts between runs, only such
 interleaved comparisons tell a change from the drift; evaluate.py gives the absolute
@@ -17,53 +17,38 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-# (label, unit, better): the measurements `measure` prints, in this order.
+SCENES = ("circle", "banana", "blobs10")
+BATCH = "banana batch of 1024, jit(vmap)"
+# (label, unit, better): the measurements `measure` prints.
 MEASUREMENTS = [
-    ("circle Q", "us", min),
-    ("circle value+grad", "us", min),
-    ("banana Q", "us", min),
-    ("banana value+grad", "us", min),
-    ("blobs10 Q", "us", min),
-    ("banana value+grad compile", "s", min),
-    ("banana batch of 1024, jit(vmap)", "/s", max),
-]
+    (f"{name} {what}", unit, min)
+    for name in SCENES
+    for what, unit in (("Q", "us"), ("value+grad", "us"), ("value+grad compile", "s"))
+] + [(BATCH, "/s", max)]
 
 
 def measure() -> None:
-    """Print the measurements of the `ocp_jax` on sys.path as one JSON line."""
+    """Print the measurements of the `ocp_jax` on sys.path as one JSON line (evaluate.py's
+    rows with k = 1 and its batch)."""
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
     sys.path.insert(0, HERE)
-    from evaluate import OBJECTIVE, cases, ocp, rectangle_cameras, scenes, timed
+    from evaluate import banana_batch, cases, engine_times, ocp, timed
 
     values = {}
     for name, scene, cameras in cases(np.random.default_rng(0), quick=True):
-        if name == "blobs3":
-            continue
-
-        def q(c, scene=scene):
-            return ocp.visibility(scene, c, OBJECTIVE)
-
-        value = jax.jit(q)
-        jax.block_until_ready(value(cameras))
-        values[f"{name} Q"] = 1e6 * timed(value, cameras)
-        if name != "blobs10":
-            both = jax.jit(jax.value_and_grad(q))
-            start = time.perf_counter()
-            jax.block_until_ready(both(cameras))
-            if name == "banana":
-                values["banana value+grad compile"] = time.perf_counter() - start
-            values[f"{name} value+grad"] = 1e6 * timed(both, cameras)
-    banana = scenes.banana()
-    batch = jnp.asarray(rectangle_cameras(1024, np.random.default_rng(1))[:, None, :])
-    per_set = jax.jit(jax.vmap(jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE))))
-    jax.block_until_ready(per_set(batch))
-    values["banana batch of 1024, jit(vmap)"] = 1024 / timed(per_set, batch, budget=2.0)
+        if name in SCENES:
+            compile_s, t_value, t_grad = engine_times(scene, cameras)
+            values[f"{name} Q"] = 1e6 * t_value
+            values[f"{name} value+grad"] = 1e6 * t_grad
+            values[f"{name} value+grad compile"] = compile_s
+    per_set, batch = banana_batch(np.random.default_rng(1))
+    batched = jax.jit(jax.vmap(per_set))
+    jax.block_until_ready(batched(batch))
+    values[BATCH] = 1024 / timed(batched, batch, budget=2.0)
     print(json.dumps({"ocp_jax": ocp.__file__, **values}))
 
 
@@ -119,13 +104,12 @@ def main():
     print(f"{args.rounds} interleaved rounds; each cell: best round (range over rounds)")
     print(f"{'':34s}" + "".join(f"{r:>{width + 16}s}" for r in trees))
     for label, unit, better in MEASUREMENTS:
+        digits = 1 if unit == "s" else 0
         cells = []
         for revision in trees:
             values = [r[label] for r in rounds[revision]]
-            precision = 1 if unit == "s" else 0
             cells.append(
-                f"{better(values):.{precision}f} ({min(values):.{precision}f}-"
-                f"{max(values):.{precision}f})"
+                f"{better(values):.{digits}f} ({min(values):.{digits}f}-{max(values):.{digits}f})"
             )
         print(f"{label + ' ' + unit:34s}" + "".join(f"{c:>{width + 16}s}" for c in cells))
 

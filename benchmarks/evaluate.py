@@ -91,14 +91,26 @@ VALUE = jax.jit(lambda s, c: ocp.visibility(s, c, OBJECTIVE))
 VALUE_AND_GRAD = jax.jit(jax.value_and_grad(lambda s, c: ocp.visibility(s, c, OBJECTIVE), 1))
 
 
-def row(name, scene, cameras, reference=True):
-    cameras = jnp.asarray(cameras)
+def engine_times(scene, cameras) -> tuple[float, float, float]:
+    """Seconds: compile of value+grad, Q, value+grad (after compilation)."""
     start = time.perf_counter()
     VALUE_AND_GRAD.lower(scene, cameras).compile()
     compile_s = time.perf_counter() - start
+    return compile_s, timed(VALUE, scene, cameras), timed(VALUE_AND_GRAD, scene, cameras)
+
+
+def banana_batch(rng):
+    """(value+grad of one single-camera set on the banana, 1024 such sets (1024, 1, 2)
+    drawn from `rng` on its rectangle)."""
+    banana = scenes.banana()
+    batch = jnp.asarray(rectangle_cameras(1024, rng)[:, None, :])
+    return jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE)), batch
+
+
+def row(name, scene, cameras, reference=True):
+    cameras = jnp.asarray(cameras)
+    compile_s, t_value, t_grad = engine_times(scene, cameras)
     value = float(VALUE(scene, cameras))
-    t_value = timed(VALUE, scene, cameras)
-    t_grad = timed(VALUE_AND_GRAD, scene, cameras)
     cells = [name, cameras.shape[0], f"{compile_s:.1f}"]
     cells += [f"{1e6 * t_value:.0f}", f"{1e6 * t_grad:.0f}"]
     if reference:
@@ -128,9 +140,7 @@ def main():
         cells, _ = row(name, scene, cameras, reference=not args.quick)
         print_row(cells, widths)
 
-    banana = scenes.banana()
-    batch = jnp.asarray(rectangle_cameras(1024, rng)[:, None, :])  # (1024, 1, 2)
-    per_set = jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE))
+    per_set, batch = banana_batch(rng)
     print("\nbanana, 1024 single-camera sets, value+grad:")
     for label, fn in (
         ("jit(vmap)", jax.jit(jax.vmap(per_set))),

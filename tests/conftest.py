@@ -10,8 +10,8 @@ Compiled functions are shared within a test module (helpers.batched and the modu
 `functools.cache` functions); every compiled program is dropped after each module (see
 `_release_compiled_programs`). The README's command runs the suite on every core with
 pytest-xdist's `--dist worksteal`: each worker starts with an even share of the collection
-in order (whole modules, mostly) and an idle worker takes tests from the end of the other's queue,
-so little compilation is repeated. `-n 0` runs it in one process.
+in order (whole modules, mostly) and an idle worker takes tests from the end of the
+other's queue, so little compilation is repeated. `-n 0` runs it in one process.
 """
 
 import gc
