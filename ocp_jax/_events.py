@@ -266,7 +266,10 @@ def shadow_times(
     has a simple root at its corner T, a grid node, where g is set to exactly 0.
     """
     c0 = jax.lax.stop_gradient(camera)
-    ray = materialize(jax.lax.stop_gradient(sub(tangency.point, camera)))  # (l,)
+    # Computed once (see `materialize`), not in every grid element of the search.
+    ray, bend = materialize(
+        jax.lax.stop_gradient((sub(tangency.point, camera), tangency.curvature))
+    )
     ray_l = ray.map(lambda a: a[None])  # (1, l)
     length = norm(ray_l)
     centre, radius = bounding_discs(samples)
@@ -277,23 +280,34 @@ def shadow_times(
         & (dot(ray_l, to_centre) + reach > tangency.depth[None] * length**2)
         & tangency.valid[None]
     )
-    rays = min(budget, passes.shape[1])
-    pick = jax.vmap(lambda p: jnp.nonzero(p, size=rays, fill_value=0)[0])(passes)  # (m, rays)
+    m, sources = passes.shape
+    rays = min(budget, sources)
     ray_count = passes.sum(1)
-    slot = jnp.broadcast_to(jnp.arange(rays), pick.shape)
-    chosen = jnp.take_along_axis(passes, pick, 1) & (slot < ray_count[:, None])
+    if rays == sources:  # room for every ray on every curve: searched as they are
+        pick, chosen = None, passes
 
-    ray_grid = ray.map(lambda a: a[pick][..., None])  # (m, rays, 1)
+        def take(a):  # (l,) -> (m, rays, 1)
+            return jnp.broadcast_to(a[None, :, None], (m, rays, 1))
+
+    else:  # the rays that pass each curve, packed into the budget
+        pick = jax.vmap(lambda p: jnp.nonzero(p, size=rays, fill_value=0)[0])(passes)
+        slot = jnp.broadcast_to(jnp.arange(rays), pick.shape)
+        chosen = jnp.take_along_axis(passes, pick, 1) & (slot < ray_count[:, None])
+
+        def take(a):
+            return a[pick][..., None]
+
+    ray_grid = ray.map(take)  # (m, rays, 1)
     sight = sub(samples.x, c0).map(lambda a: a[:, None])  # (m, 1, N + 1)
     values = cross(ray_grid, sight)
 
-    u = samples.t[None, None] - tangency.t[pick][..., None]
+    u = samples.t[None, None] - take(tangency.t)
     u = u - jnp.round(u)
     near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
     u = jnp.where(near, 1.0, u)
-    own = (tangency.curve[pick] == jnp.arange(pick.shape[0])[:, None])[..., None]
-    tangent = own & tangency.tangent[pick][..., None]
-    curvature = cross(ray_grid, tangency.curvature.map(lambda a: a[pick][..., None]))
+    own = take(tangency.curve) == jnp.arange(m)[:, None, None]
+    tangent = own & take(tangency.tangent)
+    curvature = cross(ray_grid, bend.map(take))
     r = jnp.where(near, 0.5 * curvature, values / u**2)
     # A corner's ray has a simple root at the corner, a grid node: make it exactly 0
     # there (an event at the corner, which is one already).
@@ -306,7 +320,7 @@ def shadow_times(
     slopes = samples.at_nodes(slopes_at)
 
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
-    start = tangency.depth[pick][..., None]
+    start = take(tangency.depth)
     beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
     # Rays along a straight edge make F vanish on it up to rounding (deflated values
     # on a tangency point's own curve are exempt).
@@ -315,7 +329,9 @@ def shadow_times(
         samples.t, values, slopes, budget, beyond & chosen[..., None], scale=scale
     )
     cells = samples.t.shape[0] - 1
-    line = jnp.take_along_axis(pick, brackets.source // (2 * cells), 1)  # (m, r)
+    line = brackets.source // (2 * cells)  # (m, r)
+    if pick is not None:
+        line = jnp.take_along_axis(pick, line, 1)
     args = (scene, camera, tangency.point.map(lambda a: a[line]))
     s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
     return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
