@@ -157,35 +157,36 @@ class RaySources(NamedTuple):
 
 
 @jax.custom_jvp
-def curve_points(scene, t) -> Vec:
-    """x_i(t[i]) for every curve i, differentiated in t by dx = x'(t) dt: autodiff
-    through the curve evaluation would store every power of t for reverse mode, one
-    kernel each on CPU (36 for the degree-18 banana)."""
-    return scene.components(t)[0]
+def curve_points(scene, t) -> tuple[Vec, Vec]:
+    """(x_i(t[i]), x_i''(t[i])) for every curve i, from one evaluation. x is differentiated
+    in t by x'(t) dt: autodiff through the curve evaluation would store every power of t
+    for reverse mode, one kernel each on CPU (36 for the degree-18 banana). x'' is
+    returned as a constant (no derivative, as under `lax.stop_gradient`)."""
+    x, _, ddx = scene.components(t)
+    return x, ddx
 
 
 @functools.partial(curve_points.defjvp, symbolic_zeros=True)
 def _curve_points_jvp(primals, tangents):
     scene, t = primals
     dscene, dt = tangents
-    x, dx, _ = scene.components(t)
+    x, dx, ddx = scene.components(t)
     moved = Vec(jnp.zeros_like(x.x), jnp.zeros_like(x.y))
     if not is_zero(dt):
         moved = Vec(dx.x * dt, dx.y * dt)
     if not is_zero(dscene):
         moved = add(moved, perturbed_jvp(lambda s: s.components(t)[0], scene, dscene)[1])
-    return x, moved
+    return (x, ddx), (moved, Vec(jnp.zeros_like(ddx.x), jnp.zeros_like(ddx.y)))
 
 
 def tangency_points(scene, tangents: Roots) -> RaySources:
-    x = curve_points(scene, tangents.t)
-    ddx = scene.components(jax.lax.stop_gradient(tangents.t))[2]
+    x, ddx = curve_points(scene, tangents.t)
     m, r = tangents.t.shape
     flat = lambda v: v.map(jnp.ravel)  # noqa: E731
     curve = jnp.repeat(jnp.arange(m), r)
     return RaySources(
         flat(x),
-        flat(jax.lax.stop_gradient(ddx)),
+        flat(ddx),
         jax.lax.stop_gradient(tangents.t).ravel(),
         curve,
         tangents.valid.ravel(),
