@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._jvp import is_zero, perturbed_jvp
-from ._roots import grid_brackets, solve_roots
+from ._roots import first_true, grid_brackets, solve_roots
 from ._vec import Vec, add, cross, dot, norm, sub
 
 
@@ -283,17 +283,14 @@ def shadow_times(
     )
     m, sources = passes.shape
     rays = min(budget, sources)
-    ray_count = passes.sum(1)
     if rays == sources:  # room for every ray on every curve: searched as they are
-        pick, chosen = None, passes
+        pick, chosen, ray_count = None, passes, passes.sum(1)
 
         def take(a):  # (l,) -> (m, rays, 1)
             return jnp.broadcast_to(a[None, :, None], (m, rays, 1))
 
     else:  # the rays that pass each curve, packed into the budget
-        pick = jax.vmap(lambda p: jnp.nonzero(p, size=rays, fill_value=0)[0])(passes)
-        slot = jnp.broadcast_to(jnp.arange(rays), pick.shape)
-        chosen = jnp.take_along_axis(passes, pick, 1) & (slot < ray_count[:, None])
+        pick, chosen, ray_count = first_true(passes, rays)
 
         def take(a):
             return a[pick][..., None]

@@ -8,7 +8,7 @@ Every occlusion event is a root of a smooth function F(t; theta) of the curve pa
    the cell, so a pair of roots closer together than a cell (a near-double root) gives two
    brackets; a plain sign change gives one.
 2. **Compaction.** The bracket slots that hold a root are packed into a static budget of
-   R slots (`jnp.nonzero(..., size=R)`); the true count is returned so that an exceeded
+   R slots (`first_true`); the true count is returned so that an exceeded
    budget is reported, never silently truncated.
 3. **Refinement.** Safeguarded Newton in each bracket (bisection when a step would leave
    it; a step landing exactly on an end is accepted, and so is a step of a few ulps
@@ -86,6 +86,28 @@ def _slot_bounds(f0, f1, d0, d1, h, second):
     return lo, hi, f_lo, f_hi, turning
 
 
+def first_true(mask: Bool[Array, "*batch n"], size: int):
+    """The indices of the first `size` True entries along the last axis (padded with 0),
+    which of the `size` slots hold one, and the number of True entries, all from one
+    running count of the mask.
+
+    `jnp.nonzero` reads the mask three times (its running count, its sum for the fill,
+    and the caller's count); XLA's CPU backend, which has no multi-output fusion,
+    then computes an elementwise mask three times. Here only the running count reads it:
+    the k-th index is the number of entries whose running count is <= k (as in
+    `jnp.nonzero`), and the count is the running count's last entry.
+    """
+    running = jnp.cumsum(mask, axis=-1)
+    count = running[..., -1]
+
+    def indices(running):
+        return jnp.cumsum(jnp.bincount(running, length=size))
+
+    index = jnp.vectorize(indices, signature="(n)->(r)")(running)
+    filled = jnp.broadcast_to(jnp.arange(size), index.shape) < count[..., None]
+    return jnp.where(filled, index, 0), filled, count
+
+
 def cell_ends(nodes):
     """The values at the start and at the end of every grid cell from node values: one
     array (N + 1) where they are continuous, or a pair (right limits, left limits) of
@@ -131,16 +153,7 @@ def grid_brackets(
         resolved = (jnp.abs(f0) > noise[0]) | (jnp.abs(f1) > noise[1])
         has_root = has_root & resolved[..., None]
     batch = has_root.shape[:-3]
-    flat = has_root.reshape(batch + (-1,))
-
-    def pack(mask):
-        (index,) = jnp.nonzero(mask, size=budget, fill_value=0)
-        return index
-
-    index = jnp.vectorize(pack, signature="(k)->(r)")(flat)
-    count = flat.sum(-1)
-    # Packed slots come first (`nonzero`); the others are fill.
-    candidate = jnp.broadcast_to(jnp.arange(budget), index.shape) < count[..., None]
+    index, candidate, count = first_true(has_root.reshape(batch + (-1,)), budget)
 
     # Recompute the bracket of each packed slot from its cell's values only.
     cell_index = index // 2

@@ -847,6 +847,19 @@ def test_grid_brackets_split_near_double_roots_and_count_them():
     assert int(small.count) == 2 and np.asarray(small.candidate).sum() == 1
 
 
+@pytest.mark.parametrize("size", [1, 5, 40])
+def test_first_true_equals_numpy_nonzero(size):
+    mask = np.random.default_rng(size).uniform(size=(3, 2, 40)) < [[[0.0]], [[0.1]], [[0.6]]]
+    index, filled, count = _roots.first_true(jnp.asarray(mask), size)
+    assert index.shape == filled.shape == (3, 2, size)
+    rows = zip(mask.reshape(-1, 40), index.reshape(-1, size), filled.reshape(-1, size), count.ravel())
+    for row, got, got_filled, n in rows:
+        want = np.nonzero(row)[0][:size]
+        assert int(n) == row.sum()
+        np.testing.assert_array_equal(got, np.pad(want, (0, size - want.size)))
+        np.testing.assert_array_equal(got_filled, np.arange(size) < want.size)
+
+
 def test_implicit_root_derivative():
     """d t*/da for t*(a) = the larger root of (t - a)(t - a - 0.002) = 1e-7 t."""
 
