@@ -139,7 +139,6 @@ def grid_brackets(
       edge), only rounding noise, and is skipped.
     """
     h = jnp.diff(t_nodes)
-    cells = h.shape[0]
     f0, f1 = cell_ends(values)
     d0, d1 = cell_ends(slopes)
     h_cells = jnp.broadcast_to(h, f0.shape)
@@ -155,14 +154,12 @@ def grid_brackets(
     batch = has_root.shape[:-3]
     index, candidate, count = first_true(has_root.reshape(batch + (-1,)), budget)
 
-    # Recompute the bracket of each packed slot from its cell's values only.
+    # Recompute the bracket of each packed slot from its cell's values only, gathered
+    # at once (XLA's CPU backend launches a kernel per gather).
     cell_index = index // 2
-    cell = cell_index % cells
-
-    def pick(a):
-        return jnp.take_along_axis(a.reshape(batch + (-1,)), cell_index, -1)
-
-    cell_values = (pick(f0), pick(f1), pick(d0), pick(d1), h[cell])
+    table = jnp.stack(jnp.broadcast_arrays(f0, f1, d0, d1, h_cells, t_nodes[:-1]), -1)
+    table = jnp.take_along_axis(table.reshape(batch + (-1, 6)), cell_index[..., None], -2)
+    *cell_values, start = jnp.unstack(table, axis=-1)
     lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, index % 2 == 1)
     # Initial guess: regula falsi, then two Newton steps on the Hermite cubic (an
     # O(h^4) approximation of F), so that few steps on F itself are needed.
@@ -172,7 +169,7 @@ def grid_brackets(
         p = ((a3 * guess + a2) * guess + a1) * guess + cell_values[0]
         dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
         guess = jnp.clip(guess - p / safe_divisor(dp), lo, hi)
-    start, width = t_nodes[cell], h[cell]
+    width = cell_values[4]
     return Brackets(
         start + width * lo,
         start + width * hi,
