@@ -75,15 +75,26 @@ def materialize(tree):
     into every consumer fusion, so a curve sampled once and broadcast against many rays
     would be re-evaluated per element. `optimization_barrier` does not survive the CPU
     pipeline; a while loop whose trip count depends on the data (one trip) does.
+
+    Leaves of one shape and dtype go through the loop stacked: XLA's CPU backend has no
+    multi-output fusion, but computes a stack in one kernel (one per leaf otherwise).
     """
-    leaves = jax.tree.leaves(tree)
+    leaves, treedef = jax.tree.flatten(tree)
+    groups = {}
+    for i, leaf in enumerate(leaves):
+        groups.setdefault((leaf.shape, leaf.dtype), []).append(i)
+    stacks = [jnp.stack([leaves[i] for i in group]) for group in groups.values()]
     start = jnp.isnan(leaves[-1].ravel()[0]).astype(jnp.int32)  # 0 unless NaN
 
     def body(carry):
         i, values = carry
-        return i + 1, jax.tree.map(lambda v: jnp.where(i > 1, v + v, v), values)
+        return i + 1, [jnp.where(i > 1, v + v, v) for v in values]
 
-    return jax.lax.while_loop(lambda c: c[0] < 1, body, (start, tree))[1]
+    stacks = jax.lax.while_loop(lambda c: c[0] < 1, body, (start, stacks))[1]
+    for group, stack in zip(groups.values(), stacks):
+        for i, leaf in zip(group, stack):
+            leaves[i] = leaf
+    return jax.tree.unflatten(treedef, leaves)
 
 
 @materialize.defjvp

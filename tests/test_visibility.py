@@ -847,6 +847,23 @@ def test_grid_brackets_split_near_double_roots_and_count_them():
     assert int(small.count) == 2 and np.asarray(small.candidate).sum() == 1
 
 
+def test_materialize_is_the_identity_with_an_identity_derivative():
+    tree = {
+        "a": Vec(jnp.arange(3.0), jnp.arange(3.0) + 10),
+        "b": jnp.ones((2, 3)),
+        "c": jnp.arange(4),
+        "d": Vec(jnp.arange(3.0) + 20, jnp.arange(3.0) + 30),
+    }
+    out = jax.jit(_events.materialize)(tree)
+    for want, got in zip(jax.tree.leaves(tree), jax.tree.leaves(out)):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+    x = jnp.array([0.5, -2.0])
+    fn = lambda x: _events.materialize(Vec(jnp.sin(x), x**2)).y  # noqa: E731
+    np.testing.assert_allclose(jax.jacfwd(fn)(x), np.diag(2 * np.asarray(x)), rtol=1e-15)
+    np.testing.assert_allclose(jax.jacrev(fn)(x), np.diag(2 * np.asarray(x)), rtol=1e-15)
+
+
 @pytest.mark.parametrize("size", [1, 5, 40])
 def test_first_true_equals_numpy_nonzero(size):
     mask = np.random.default_rng(size).uniform(size=(3, 2, 40)) < [[[0.0]], [[0.1]], [[0.6]]]
