@@ -341,7 +341,7 @@ def shadow_times(
     line = brackets.source // (2 * cells)  # (m, r)
     if pick is not None:
         line = jnp.take_along_axis(pick, line, 1)
-    args = (scene, camera, tangency.point.map(lambda a: a[line]))
+    args = (scene, camera, Vec.of(tangency.point.stack()[line]))  # one gather
     s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
     return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
 
