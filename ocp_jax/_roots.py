@@ -160,16 +160,16 @@ def grid_brackets(
     table = jnp.stack(jnp.broadcast_arrays(f0, f1, d0, d1, h_cells, t_nodes[:-1]), -1)
     table = jnp.take_along_axis(table.reshape(batch + (-1, 6)), cell_index[..., None], -2)
     *cell_values, start = jnp.unstack(table, axis=-1)
+    f_start, _, _, _, width = cell_values
     lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, index % 2 == 1)
     # Initial guess: regula falsi, then two Newton steps on the Hermite cubic (an
     # O(h^4) approximation of F), so that few steps on F itself are needed.
     guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / safe_divisor(f_lo - f_hi))
     a1, a2, a3 = _hermite_coefficients(*cell_values)
     for _ in range(2):
-        p = ((a3 * guess + a2) * guess + a1) * guess + cell_values[0]
+        p = ((a3 * guess + a2) * guess + a1) * guess + f_start
         dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
         guess = jnp.clip(guess - p / safe_divisor(dp), lo, hi)
-    width = cell_values[4]
     return Brackets(
         start + width * lo,
         start + width * hi,
