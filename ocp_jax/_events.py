@@ -84,13 +84,15 @@ def materialize(tree):
     for i, leaf in enumerate(leaves):
         groups.setdefault((leaf.shape, leaf.dtype), []).append(i)
     stacks = [jnp.stack([leaves[i] for i in group]) for group in groups.values()]
-    start = jnp.isnan(leaves[-1].ravel()[0]).astype(jnp.int32)  # 0 unless NaN
+    # The loop's condition is its carried flag (no kernel of its own): true on entry
+    # unless the data is NaN, false after the first trip.
+    first = ~jnp.isnan(leaves[-1].ravel()[0])
 
     def body(carry):
-        i, values = carry
-        return i + 1, [jnp.where(i > 1, v + v, v) for v in values]
+        first, values = carry
+        return ~first, [jnp.where(first, v, v + v) for v in values]
 
-    stacks = jax.lax.while_loop(lambda c: c[0] < 1, body, (start, stacks))[1]
+    stacks = jax.lax.while_loop(lambda c: c[0], body, (first, stacks))[1]
     for group, stack in zip(groups.values(), stacks):
         for i, leaf in zip(group, stack):
             leaves[i] = leaf
