@@ -184,7 +184,8 @@ def grid_brackets(
 
 def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     """Safeguarded Newton on `fn(t, args) -> (F, dF/dt, scale)` inside each bracket, at
-    most `iterations` steps, stopping once no root moves by more than 4 eps.
+    most `iterations` steps, stopping once no root moves by more than 4 eps (no step
+    where no slot holds a candidate).
 
     Returns the roots (no derivative attached) and whether each is a root: a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
@@ -217,7 +218,7 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
         i, *_, settled = carry
         return (i < iterations) & ~settled
 
-    carry = (0, lo, hi, t, confirmed, False)
+    carry = (0, lo, hi, t, confirmed, ~jnp.any(brackets.candidate))
     _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
     value, _, scale = fn(t, args)
     converged = jnp.abs(value) <= 1e3 * eps * scale

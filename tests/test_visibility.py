@@ -877,6 +877,29 @@ def test_first_true_equals_numpy_nonzero(size):
         np.testing.assert_array_equal(got_filled, np.arange(size) < want.size)
 
 
+def test_newton_in_brackets_takes_no_step_without_candidates():
+    """F(t) = t - 0.3: one Newton step from any guess lands on the root. Slots move only
+    where some slot of the batch element holds a candidate."""
+    fn = lambda t, _: (t - 0.3, jnp.ones_like(t), jnp.ones_like(t))  # noqa: E731
+    shape = (2, 3)
+    candidate = jnp.array([[False, False, False], [False, True, False]])
+    brackets = _roots.Brackets(
+        lo=jnp.zeros(shape),
+        hi=jnp.ones(shape),
+        guess=jnp.full(shape, 0.5),
+        sign_lo=-jnp.ones(shape),
+        turning=jnp.zeros(shape, bool),
+        candidate=candidate,
+        source=jnp.zeros(shape, int),
+        count=candidate.sum(1),
+    )
+    solve = jax.jit(jax.vmap(lambda b: _roots.newton_in_brackets(fn, None, b, 8)))
+    t, valid = solve(brackets)
+    np.testing.assert_array_equal(t[0], 0.5)  # no candidate: no step
+    np.testing.assert_allclose(t[1], 0.3, rtol=0, atol=1e-16)
+    np.testing.assert_array_equal(valid, candidate)
+
+
 def test_implicit_root_derivative():
     """d t*/da for t*(a) = the larger root of (t - a)(t - a - 0.002) = 1e-7 t."""
 
