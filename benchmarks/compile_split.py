@@ -4,23 +4,30 @@
 
 Per row of evaluate.py's table (scene and number of cameras k): the seconds spent
 tracing to a jaxpr, lowering to StableHLO and compiling with XLA, the jaxpr's equation
-count (sub-jaxprs included), and the compiled program's top-level kernels (the
-instructions of its entry computation that run, loops counted once), whose launches
-bound the run time of small scenes.
+count (sub-jaxprs included), the compiled program's top-level kernels (the
+instructions of its entry computation that run, loops counted once), and the kernels
+one call launches (loop trips included, counted by the JAX profiler), which bound the
+run time of small scenes.
 """
 
+import glob
 import re
+import tempfile
 import time
 
 import jax
 import numpy as np
 from jax.extend.core import jaxprs_in_params
+from jax.profiler import ProfileData
 
 jax.config.update("jax_enable_x64", True)
 
 from evaluate import VALUE_AND_GRAD, cases, print_row  # noqa: E402
 
 _NOT_KERNELS = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast"}
+_CONTAINERS = {"while", "conditional", "call"}
+# An HLO instruction's name and opcode.
+_INSTRUCTION = re.compile(r"^\s+(?:ROOT )?%(\S+) = .*? ([a-z][\w-]*)\(", re.MULTILINE)
 
 
 def equations(jaxpr) -> int:
@@ -29,8 +36,22 @@ def equations(jaxpr) -> int:
 
 def top_level_kernels(hlo_text: str) -> int:
     entry = hlo_text.split("\nENTRY ", 1)[1].split("\n}\n", 1)[0]
-    opcodes = re.findall(r"^\s+(?:ROOT )?%\S+ = .*? ([a-z][\w-]*)\(", entry, re.M)
-    return sum(op not in _NOT_KERNELS for op in opcodes)
+    return sum(op not in _NOT_KERNELS for _, op in _INSTRUCTION.findall(entry))
+
+
+def launches(compiled, scene, cameras, calls: int = 20) -> float:
+    """Kernels launched per call: the profiler's events named after an instruction of
+    the compiled program (loops and conditionals, which launch their bodies, excluded)."""
+    instructions = _INSTRUCTION.findall(compiled.as_text())
+    kernels = {name for name, op in instructions if op not in _NOT_KERNELS | _CONTAINERS}
+    jax.block_until_ready(compiled(scene, cameras))
+    folder = tempfile.mkdtemp()
+    with jax.profiler.trace(folder):
+        for _ in range(calls):
+            jax.block_until_ready(compiled(scene, cameras))
+    (path,) = glob.glob(f"{folder}/**/*.xplane.pb", recursive=True)
+    lines = (line for plane in ProfileData.from_file(path).planes for line in plane.lines)
+    return sum(e.name in kernels for line in lines for e in line.events) / calls
 
 
 def split(scene, cameras):
@@ -47,6 +68,7 @@ def split(scene, cameras):
         compiled_s - lowered_s,
         equations(traced.jaxpr.jaxpr),
         top_level_kernels(compiled.as_text()),
+        launches(compiled, scene, cameras),
     )
 
 
@@ -54,12 +76,13 @@ def main():
     jax.jit(lambda x: x + 1)(1.0)  # JAX's own start-up is not the scene's compile time
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, value+grad")
     header = ["scene", "k", "trace s", "lower s", "XLA s", "total s", "equations", "kernels"]
-    widths = [8, 2, 8, 8, 7, 8, 10, 8]
+    header.append("launches")
+    widths = [8, 2, 8, 8, 7, 8, 10, 8, 9]
     print_row(header, widths)
     for name, scene, cameras in cases(np.random.default_rng(0)):
-        trace, lower, xla, eqns, kernels = split(scene, cameras)
+        trace, lower, xla, eqns, kernels, launched = split(scene, cameras)
         cells = [name, cameras.shape[0], f"{trace:.2f}", f"{lower:.2f}", f"{xla:.2f}"]
-        print_row(cells + [f"{trace + lower + xla:.1f}", eqns, kernels], widths)
+        print_row(cells + [f"{trace + lower + xla:.1f}", eqns, kernels, f"{launched:.0f}"], widths)
 
 
 if __name__ == "__main__":
