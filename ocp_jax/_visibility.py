@@ -257,8 +257,7 @@ def _closest_points(scene, cameras: Vec, samples: Samples, sense):
     def outward(dx, offset):  # offset along the outward normal -J x' / |x'|
         return -sense[:, None] * cross(dx, offset) / safe_divisor(norm(dx))
 
-    # Unrolled: six kernels, where a loop launches three per trip and its condition.
-    t = jax.lax.fori_loop(0, 6, newton, t0, unroll=True)
+    t = jax.lax.fori_loop(0, 6, newton, t0)
     x, dx, _ = scene.components(jnp.mod(t, 1.0))
     offset = sub(camera, x)
     distance, side = norm(offset), outward(dx, offset)
