@@ -45,12 +45,13 @@ def launches(compiled, scene, cameras, calls: int = 20) -> float:
     instructions = _INSTRUCTION.findall(compiled.as_text())
     kernels = {name for name, op in instructions if op not in _NOT_KERNELS | _CONTAINERS}
     jax.block_until_ready(compiled(scene, cameras))
-    folder = tempfile.mkdtemp()
-    with jax.profiler.trace(folder):
-        for _ in range(calls):
-            jax.block_until_ready(compiled(scene, cameras))
-    (path,) = glob.glob(f"{folder}/**/*.xplane.pb", recursive=True)
-    lines = (line for plane in ProfileData.from_file(path).planes for line in plane.lines)
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder):
+            for _ in range(calls):
+                jax.block_until_ready(compiled(scene, cameras))
+        (path,) = glob.glob(f"{folder}/**/*.xplane.pb", recursive=True)
+        profile = ProfileData.from_file(path)
+    lines = (line for plane in profile.planes for line in plane.lines)
     return sum(e.name in kernels for line in lines for e in line.events) / calls
 
 
@@ -75,9 +76,9 @@ def split(scene, cameras):
 def main():
     jax.jit(lambda x: x + 1)(1.0)  # JAX's own start-up is not the scene's compile time
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, value+grad")
-    header = ["scene", "k", "trace s", "lower s", "XLA s", "total s", "equations", "kernels"]
-    header.append("launches")
-    widths = [8, 2, 8, 8, 7, 8, 10, 8, 9]
+    columns = [("scene", 8), ("k", 2), ("trace s", 8), ("lower s", 8), ("XLA s", 7)]
+    columns += [("total s", 8), ("equations", 10), ("kernels", 8), ("launches", 9)]
+    header, widths = zip(*columns)
     print_row(header, widths)
     for name, scene, cameras in cases(np.random.default_rng(0)):
         trace, lower, xla, eqns, kernels, launched = split(scene, cameras)
