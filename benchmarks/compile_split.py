@@ -39,10 +39,11 @@ def top_level_kernels(hlo_text: str) -> int:
     return sum(op not in _NOT_KERNELS for _, op in _INSTRUCTION.findall(entry))
 
 
-def launches(compiled, scene, cameras, calls: int = 20) -> float:
+def launches(compiled, hlo_text: str, scene, cameras, calls: int = 20) -> float:
     """Kernels launched per call: the profiler's events named after an instruction of
-    the compiled program (loops and conditionals, which launch their bodies, excluded)."""
-    instructions = _INSTRUCTION.findall(compiled.as_text())
+    the compiled program (`hlo_text`; loops and conditionals, which launch their bodies,
+    excluded)."""
+    instructions = _INSTRUCTION.findall(hlo_text)
     kernels = {name for name, op in instructions if op not in _NOT_KERNELS | _CONTAINERS}
     jax.block_until_ready(compiled(scene, cameras))
     with tempfile.TemporaryDirectory() as folder:
@@ -63,13 +64,14 @@ def split(scene, cameras):
     lowered_s = time.perf_counter()
     compiled = lowered.compile()
     compiled_s = time.perf_counter()
+    hlo_text = compiled.as_text()
     return (
         traced_s - start,
         lowered_s - traced_s,
         compiled_s - lowered_s,
         equations(traced.jaxpr.jaxpr),
-        top_level_kernels(compiled.as_text()),
-        launches(compiled, scene, cameras),
+        top_level_kernels(hlo_text),
+        launches(compiled, hlo_text, scene, cameras),
     )
 
 
