@@ -84,8 +84,8 @@ def materialize(tree):
     for i, leaf in enumerate(leaves):
         groups.setdefault((leaf.shape, leaf.dtype), []).append(i)
     stacks = [jnp.stack([leaves[i] for i in group]) for group in groups.values()]
-    # The loop's condition is its carried flag (no kernel of its own): true on entry
-    # unless the data is NaN, false after the first trip.
+    # The loop's condition is its carried flag (no kernel of its own, unless vmap
+    # batches it): true on entry unless the data is NaN, false after the first trip.
     first = ~jnp.isnan(leaves[-1].ravel()[0])
 
     def body(carry):
