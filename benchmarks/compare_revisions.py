@@ -1,6 +1,6 @@
 """Speed of git revisions side by side, measured in turn so that outside load falls on all.
 
-    python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3]
+    python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3] [--one-core]
 
 Each revision is checked out in a temporary git worktree and measured in a fresh process
 (its `ocp_jax`; this checkout's evaluate.py: its k = 1 rows and its batch), revision after
@@ -8,6 +8,12 @@ revision, `--rounds` times. Prints per measurement the best round of every revis
 the range over rounds. On a machine whose speed drifts between runs, only such
 interleaved comparisons tell a change from the drift; evaluate.py gives the absolute
 figures on a quiet machine.
+
+With --one-core every revision is also measured in a process pinned to one CPU core
+(Linux's sched_setaffinity, as `taskset -c 0` does). XLA's CPU runtime sizes its thread
+pool by the cores it may use: on several, it runs the independent kernels of a program
+on different threads and splits its largest kernels between them; on one, it runs every
+kernel in turn, with no hand-over between threads.
 """
 
 import argparse
@@ -52,12 +58,22 @@ def measure() -> None:
     print(json.dumps({"ocp_jax": ocp.__file__, **values}))
 
 
-def run_revision(tree: str) -> dict:
-    """The measurements of the checkout at `tree`, from a fresh process."""
+def pin_to_one_core() -> None:
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+
+def run_revision(tree: str, one_core: bool) -> dict:
+    """The measurements of the checkout at `tree`, from a fresh process (pinned to one
+    core if `one_core`)."""
     environment = dict(os.environ, PYTHONPATH=tree)
     out = subprocess.run(
         [sys.executable, os.path.abspath(__file__), "--measure"],
-        cwd=tree, env=environment, capture_output=True, text=True, check=True,
+        cwd=tree,
+        env=environment,
+        capture_output=True,
+        text=True,
+        check=True,
+        preexec_fn=pin_to_one_core if one_core else None,
     ).stdout
     values = json.loads(out.strip().splitlines()[-1])
     if not values.pop("ocp_jax").startswith(tree):
@@ -69,6 +85,9 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("revisions", nargs="*", help="git revisions (commits, branches)")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument(
+        "--one-core", action="store_true", help="also measure each revision on one core"
+    )
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.measure:
@@ -76,7 +95,10 @@ def main():
     if not args.revisions:
         parser.error("name at least one revision, e.g. HEAD~1 HEAD")
     repository = subprocess.run(
-        ["git", "rev-parse", "--show-toplevel"], cwd=HERE, capture_output=True, text=True,
+        ["git", "rev-parse", "--show-toplevel"],
+        cwd=HERE,
+        capture_output=True,
+        text=True,
         check=True,
     ).stdout.strip()
     git = ["git", "-C", repository]
@@ -91,23 +113,27 @@ def main():
                     git + ["worktree", "add", "--detach", "-q", tree, revision], check=True
                 )
                 trees[revision] = tree
-            rounds = {revision: [] for revision in trees}
+            # (column, worktree, pinned to one core)
+            columns = [(revision, tree, False) for revision, tree in trees.items()]
+            if args.one_core:
+                columns += [(f"{revision} 1 core", tree, True) for revision, tree in trees.items()]
+            rounds = {column: [] for column, _, _ in columns}
             for i in range(args.rounds):
-                for revision, tree in trees.items():
-                    rounds[revision].append(run_revision(tree))
-                    print(f"round {i + 1}/{args.rounds}: {revision} measured", file=sys.stderr)
+                for column, tree, one_core in columns:
+                    rounds[column].append(run_revision(tree, one_core))
+                    print(f"round {i + 1}/{args.rounds}: {column} measured", file=sys.stderr)
         finally:
             for tree in trees.values():
                 subprocess.run(git + ["worktree", "remove", "--force", tree], check=False)
 
-    width = max(12, *(len(r) for r in trees))
+    width = max(12, *(len(c) for c in rounds))
     print(f"{args.rounds} interleaved rounds; each cell: best round (range over rounds)")
-    print(f"{'':34s}" + "".join(f"{r:>{width + 16}s}" for r in trees))
+    print(f"{'':34s}" + "".join(f"{c:>{width + 16}s}" for c in rounds))
     for label, unit, better in MEASUREMENTS:
         digits = 1 if unit == "s" else 0
         cells = []
-        for revision in trees:
-            values = [r[label] for r in rounds[revision]]
+        for measured in rounds.values():
+            values = [r[label] for r in measured]
             cells.append(
                 f"{better(values):.{digits}f} ({min(values):.{digits}f}-{max(values):.{digits}f})"
             )
