@@ -8,7 +8,9 @@ reference (tests/reference.py) at matching accuracy beside it, with the relative
 difference of the two Q values; then the throughput of a vmapped batch of 1024
 single-camera sets on the banana. Targets (issue 2, 2-core CPU): banana k=1 value+grad
 <= 200 us; 10 blobs k=4 <= 5 ms; batch >= 10,000 value+grad/s; compile <= 10 s; >= 100x
-faster than the reference.
+faster than the reference. `taskset -c 0 python benchmarks/evaluate.py` gives the same
+table for a process on one core (README: small programs run faster there, large ones,
+compiling and batches slower).
 """
 
 import argparse
