@@ -59,6 +59,7 @@ def measure() -> None:
 
 
 def pin_to_one_core() -> None:
+    """Pins this process (a child, before it starts Python) to its first allowed core."""
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 
