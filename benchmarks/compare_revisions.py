@@ -95,6 +95,8 @@ def main():
         return measure()
     if not args.revisions:
         parser.error("name at least one revision, e.g. HEAD~1 HEAD")
+    if args.one_core and not hasattr(os, "sched_setaffinity"):
+        parser.error(f"--one-core needs os.sched_setaffinity (Linux), which {sys.platform} lacks")
     repository = subprocess.run(
         ["git", "rev-parse", "--show-toplevel"],
         cwd=HERE,
