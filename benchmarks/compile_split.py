@@ -7,7 +7,8 @@ tracing to a jaxpr, lowering to StableHLO and compiling with XLA, the jaxpr's eq
 count (sub-jaxprs included), the compiled program's top-level kernels (the
 instructions of its entry computation that run, loops counted once), and the kernels
 one call launches (loop trips included, counted by the JAX profiler), which bound the
-run time of small scenes.
+run time of small scenes; and how many kernels XLA splits between threads (its parallel
+task assignment, which depends on the cores the process may use: none on one core).
 """
 
 import glob
@@ -37,6 +38,12 @@ def equations(jaxpr) -> int:
 def top_level_kernels(hlo_text: str) -> int:
     entry = hlo_text.split("\nENTRY ", 1)[1].split("\n}\n", 1)[0]
     return sum(op not in _NOT_KERNELS for _, op in _INSTRUCTION.findall(entry))
+
+
+def split_kernels(hlo_text: str) -> int:
+    """Kernels XLA splits between threads: those given a non-empty list of outer
+    dimension partitions (other kernels may carry an empty one)."""
+    return hlo_text.count('"outer_dimension_partitions":["')
 
 
 def launches(compiled, hlo_text: str, scene, cameras, calls: int = 20) -> float:
@@ -72,6 +79,7 @@ def split(scene, cameras):
         equations(traced.jaxpr.jaxpr),
         top_level_kernels(hlo_text),
         launches(compiled, hlo_text, scene, cameras),
+        split_kernels(hlo_text),
     )
 
 
@@ -80,12 +88,14 @@ def main():
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, value+grad")
     columns = [("scene", 8), ("k", 2), ("trace s", 8), ("lower s", 8), ("XLA s", 7)]
     columns += [("total s", 8), ("equations", 10), ("kernels", 8), ("launches", 9)]
+    columns += [("split", 6)]
     header, widths = zip(*columns)
     print_row(header, widths)
     for name, scene, cameras in cases(np.random.default_rng(0)):
-        trace, lower, xla, eqns, kernels, launched = split(scene, cameras)
+        trace, lower, xla, eqns, kernels, launched, split_count = split(scene, cameras)
         cells = [name, cameras.shape[0], f"{trace:.2f}", f"{lower:.2f}", f"{xla:.2f}"]
-        print_row(cells + [f"{trace + lower + xla:.1f}", eqns, kernels, f"{launched:.0f}"], widths)
+        cells += [f"{trace + lower + xla:.1f}", eqns, kernels, f"{launched:.0f}", split_count]
+        print_row(cells, widths)
 
 
 if __name__ == "__main__":
