@@ -1,6 +1,7 @@
 """Speed of git revisions side by side, measured in turn so that outside load falls on all.
 
     python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3] [--one-core]
+        [--xla-flags FLAGS]
 
 Each revision is checked out in a temporary git worktree and measured in a fresh process
 (its `ocp_jax`; this checkout's evaluate.py: its k = 1 rows and its batch), revision after
@@ -14,6 +15,10 @@ With --one-core every revision is also measured in a process pinned to one CPU c
 pool by the cores it may use: on several, it runs the independent kernels of a program
 on different threads and splits its largest kernels between them; on one, it runs every
 kernel in turn, with no hand-over between threads.
+
+With --xla-flags every revision is also measured with FLAGS appended to XLA_FLAGS, e.g.
+--xla-flags=--xla_cpu_enable_concurrency_optimized_scheduler=false (XLA's depth-first
+memory scheduler: its buffer reuse orders more of the kernels one after another).
 """
 
 import argparse
@@ -42,7 +47,7 @@ def measure() -> None:
     import numpy as np
 
     sys.path.insert(0, HERE)
-    from evaluate import banana_batch, cases, engine_times, ocp, timed
+    from evaluate import banana_batch, cases, compiled, engine_times, ocp, timed
 
     values = {}
     for name, scene, cameras in cases(np.random.default_rng(0), quick=True):
@@ -52,7 +57,7 @@ def measure() -> None:
             values[f"{name} value+grad"] = 1e6 * t_grad
             values[f"{name} value+grad compile"] = compile_s
     per_set, batch = banana_batch(np.random.default_rng(1))
-    batched = jax.jit(jax.vmap(per_set))
+    batched = compiled(jax.vmap(per_set))
     jax.block_until_ready(batched(batch))
     values[BATCH] = 1024 / timed(batched, batch, budget=2.0)
     print(json.dumps({"ocp_jax": ocp.__file__, **values}))
@@ -63,10 +68,12 @@ def pin_to_one_core() -> None:
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 
-def run_revision(tree: str, one_core: bool) -> dict:
+def run_revision(tree: str, one_core: bool, xla_flags: str) -> dict:
     """The measurements of the checkout at `tree`, from a fresh process (pinned to one
-    core if `one_core`)."""
+    core if `one_core`, with `xla_flags` appended to XLA_FLAGS)."""
     environment = dict(os.environ, PYTHONPATH=tree)
+    if xla_flags:
+        environment["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {xla_flags}".strip()
     out = subprocess.run(
         [sys.executable, os.path.abspath(__file__), "--measure"],
         cwd=tree,
@@ -88,6 +95,9 @@ def main():
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument(
         "--one-core", action="store_true", help="also measure each revision on one core"
+    )
+    parser.add_argument(
+        "--xla-flags", default="", help="also measure each revision with these XLA_FLAGS"
     )
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -116,14 +126,21 @@ def main():
                     git + ["worktree", "add", "--detach", "-q", tree, revision], check=True
                 )
                 trees[revision] = tree
-            # (column, worktree, pinned to one core)
-            columns = [(revision, tree, False) for revision, tree in trees.items()]
+            # (column, worktree, pinned to one core, added XLA flags)
+            settings = [("", False, "")]
             if args.one_core:
-                columns += [(f"{revision} 1 core", tree, True) for revision, tree in trees.items()]
-            rounds = {column: [] for column, _, _ in columns}
+                settings.append((" 1 core", True, ""))
+            if args.xla_flags:
+                settings.append((" +flags", False, args.xla_flags))
+            columns = [
+                (revision + suffix, tree, one_core, flags)
+                for suffix, one_core, flags in settings
+                for revision, tree in trees.items()
+            ]
+            rounds = {column: [] for column, *_ in columns}
             for i in range(args.rounds):
-                for column, tree, one_core in columns:
-                    rounds[column].append(run_revision(tree, one_core))
+                for column, *setting in columns:
+                    rounds[column].append(run_revision(*setting))
                     print(f"round {i + 1}/{args.rounds}: {column} measured", file=sys.stderr)
         finally:
             for tree in trees.values():
@@ -131,6 +148,8 @@ def main():
 
     width = max(12, *(len(c) for c in rounds))
     print(f"{args.rounds} interleaved rounds; each cell: best round (range over rounds)")
+    if args.xla_flags:
+        print(f"+flags: XLA_FLAGS {args.xla_flags}")
     print(f"{'':34s}" + "".join(f"{c:>{width + 16}s}" for c in rounds))
     for label, unit, better in MEASUREMENTS:
         digits = 1 if unit == "s" else 0
