@@ -24,6 +24,7 @@ import scipy.optimize
 from jaxtyping import Array, Float, PRNGKeyArray
 
 from ._camera import Camera
+from ._compile import jit
 from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objective, camera_groups
 from ._optimize import OptimizeResult, _best, _problem_and_starts, _tolerance
 from ._placement import AbstractPlacement
@@ -76,7 +77,7 @@ def _from_rows(rows, layout):
     return Camera(rows[..., :2], rows[..., 2], fov, reach)
 
 
-@eqx.filter_jit
+@jit
 def _set_values(scene, objective, options, layout, camera_sets):
     """Q of every camera set (rows (n, k, r), see `_to_rows`), -inf where undefined."""
 
@@ -213,17 +214,17 @@ def exhaustive(
     )
 
 
-@eqx.filter_jit
+@jit
 def _loss_and_grad(problem, params):
     return jax.value_and_grad(problem.loss)(params)
 
 
-@eqx.filter_jit
+@jit
 def _constraint(problem, params, index: int):
     return problem.constraints(params)[index]
 
 
-@eqx.filter_jit
+@jit
 def _constraint_jacobian(problem, params, index: int):
     return jax.jacrev(lambda p: problem.constraints(p)[index])(params)
 

@@ -31,6 +31,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from ._compile import jit
 from ._objectives import (
     AbstractLocalObjective,
     Foreshortened,
@@ -102,7 +103,7 @@ def _where_done(done, old, new):
     return jax.tree.map(pick, old, new)
 
 
-@eqx.filter_jit
+@jit
 def _init(solver, problem, params, multipliers, penalty):
     def one(y, lam_nu, mu):
         f_struct = jax.ShapeDtypeStruct((), y.dtype)
@@ -111,7 +112,7 @@ def _init(solver, problem, params, multipliers, penalty):
     return jax.vmap(one)(params, multipliers, penalty)
 
 
-@eqx.filter_jit
+@jit
 def _advance(solver, problem, carry, multipliers, penalty, n_steps, max_steps):
     """Up to `n_steps` steps of every start that has not stopped. `carry` = (params,
     solver state, done, steps, converged, result index)."""
@@ -139,12 +140,12 @@ def _advance(solver, problem, carry, multipliers, penalty, n_steps, max_steps):
     return jax.lax.while_loop(cond, body, (jnp.asarray(0), carry))[1]
 
 
-@eqx.filter_jit
+@jit
 def _values(problem, params):
     return problem.values(params)
 
 
-@eqx.filter_jit
+@jit
 def _constraint_values(problem, params):
     return jax.vmap(problem.constraints)(params)
 
