@@ -17,8 +17,8 @@ on different threads and splits its largest kernels between them; on one, it run
 kernel in turn, with no hand-over between threads.
 
 With --xla-flags every revision is also measured with FLAGS appended to XLA_FLAGS, e.g.
---xla-flags=--xla_cpu_enable_concurrency_optimized_scheduler=false (XLA's depth-first
-memory scheduler: its buffer reuse orders more of the kernels one after another).
+--xla-flags=--xla_cpu_scheduler_type=CPU_SCHEDULER_TYPE_MEMORY_OPTIMIZED, the option of
+`ocp.compiler_options()` for every program of the process.
 """
 
 import argparse
@@ -47,7 +47,7 @@ def measure() -> None:
     import numpy as np
 
     sys.path.insert(0, HERE)
-    from evaluate import banana_batch, cases, compiled, engine_times, ocp, timed
+    from evaluate import banana_batch, cases, engine_times, ocp, timed
 
     values = {}
     for name, scene, cameras in cases(np.random.default_rng(0), quick=True):
@@ -57,7 +57,7 @@ def measure() -> None:
             values[f"{name} value+grad"] = 1e6 * t_grad
             values[f"{name} value+grad compile"] = compile_s
     per_set, batch = banana_batch(np.random.default_rng(1))
-    batched = compiled(jax.vmap(per_set))
+    batched = jax.jit(jax.vmap(per_set))
     jax.block_until_ready(batched(batch))
     values[BATCH] = 1024 / timed(batched, batch, budget=2.0)
     print(json.dumps({"ocp_jax": ocp.__file__, **values}))

@@ -89,18 +89,8 @@ def print_row(cells, widths):
     print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
 
 
-# ocp_jax's XLA options, passed as a user's program passes them (README "Performance");
-# the revisions before them, which compare_revisions.py may measure, have none.
-COMPILER_OPTIONS = getattr(ocp, "compiler_options", dict)()
-
-
-def compiled(fn):
-    """`jax.jit` with ocp_jax's compiler options."""
-    return jax.jit(fn, compiler_options=COMPILER_OPTIONS)
-
-
-VALUE = compiled(lambda s, c: ocp.visibility(s, c, OBJECTIVE))
-VALUE_AND_GRAD = compiled(jax.value_and_grad(lambda s, c: ocp.visibility(s, c, OBJECTIVE), 1))
+VALUE = jax.jit(lambda s, c: ocp.visibility(s, c, OBJECTIVE))
+VALUE_AND_GRAD = jax.jit(jax.value_and_grad(lambda s, c: ocp.visibility(s, c, OBJECTIVE), 1))
 
 
 def engine_times(scene, cameras) -> tuple[float, float, float]:
@@ -144,7 +134,6 @@ def main():
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, Foreshortened")
-    print(f"compiler_options={COMPILER_OPTIONS}")
     header = ["scene", "k", "compile s", "Q us", "Q+grad us"]
     header += ["NumPy ref ms", "speed-up", "|rel diff|"]
     widths = [10, 2, 10, 9, 10, 13, 9, 10]
@@ -156,8 +145,8 @@ def main():
     per_set, batch = banana_batch(rng)
     print("\nbanana, 1024 single-camera sets, value+grad:")
     for label, fn in (
-        ("jit(vmap)", compiled(jax.vmap(per_set))),
-        ("jit(lax.map, batch_size=64)", compiled(lambda b: jax.lax.map(per_set, b, batch_size=64))),
+        ("jit(vmap)", jax.jit(jax.vmap(per_set))),
+        ("jit(lax.map, batch_size=64)", jax.jit(lambda b: jax.lax.map(per_set, b, batch_size=64))),
     ):
         start = time.perf_counter()
         jax.block_until_ready(fn(batch))

@@ -26,7 +26,7 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from evaluate import compiled, timed  # noqa: E402  (benchmarks/evaluate.py)
+from evaluate import timed  # noqa: E402  (benchmarks/evaluate.py)
 
 import ocp_jax as ocp  # noqa: E402
 from ocp_jax import scenes  # noqa: E402
@@ -93,7 +93,7 @@ def cost(quick: bool):
         for objective in [ocp.Foreshortened()] + [
             ocp.Smoothed(ocp.Foreshortened(), 0.02, nodes=n) for n in node_counts
         ]:
-            fn = compiled(jax.value_and_grad(lambda c, q=objective: ocp.visibility(scene, c, q)))
+            fn = jax.jit(jax.value_and_grad(lambda c, q=objective: ocp.visibility(scene, c, q)))
             row.append(timed(fn, cameras, repeats=1))
         print(f"{name:16s} " + " ".join(f"{1e3 * t:8.2f}ms" for t in row))
     print()

@@ -214,17 +214,17 @@ def exhaustive(
     )
 
 
-@jit
+@eqx.filter_jit
 def _loss_and_grad(problem, params):
     return jax.value_and_grad(problem.loss)(params)
 
 
-@jit
+@eqx.filter_jit
 def _constraint(problem, params, index: int):
     return problem.constraints(params)[index]
 
 
-@jit
+@eqx.filter_jit
 def _constraint_jacobian(problem, params, index: int):
     return jax.jacrev(lambda p: problem.constraints(p)[index])(params)
 

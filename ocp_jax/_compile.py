@@ -2,11 +2,11 @@
 
 A value and gradient of Q is a program of a few hundred small kernels (microseconds each).
 XLA's CPU runtime runs the kernels that do not depend on each other on different threads.
-Its default schedule keeps many buffers live, so that many kernels are independent; its
-memory-optimized schedule reuses buffers, which orders more kernels one after another.
-For these programs the second is faster on two cores: handing small kernels between
-threads costs more than running them in turn (benchmarks/compare_revisions.py
---xla-flags, README "Performance").
+Its default scheduler orders them so that many are independent; its memory-optimized
+scheduler reuses buffers, which orders more of them one after another. On two cores the
+second is faster for the programs of one camera and for vmapped batches of camera sets,
+and about as fast for one set of several cameras, slower for the largest (10 blobs, 4
+cameras): `python benchmarks/compiler_options.py`, README "Performance".
 """
 
 import equinox as eqx
@@ -19,10 +19,11 @@ def compiler_options() -> dict[str, str]:
     JAX takes compile options from the outermost `jax.jit` only (a nested jit with options
     is an error), so pass them to the one that wraps ocp_jax in your program:
 
-        jax.jit(jax.value_and_grad(f), compiler_options=ocp.compiler_options())
+        jax.jit(jax.vmap(jax.value_and_grad(f)), compiler_options=ocp.compiler_options())
 
-    `ocp.optimize`, `ocp.greedy`, `ocp.exhaustive` and `ocp.slsqp` compile with them;
-    `ocp.visibility` and `ocp.visible_intervals`, which run inside users' jits, cannot.
+    The batched programs of `ocp.optimize`, `ocp.greedy` and `ocp.exhaustive` compile with
+    them. `ocp.visibility` and `ocp.visible_intervals`, which run inside users' jits,
+    cannot.
     """
     return {"xla_cpu_scheduler_type": "CPU_SCHEDULER_TYPE_MEMORY_OPTIMIZED"}
 
