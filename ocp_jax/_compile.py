@@ -14,7 +14,8 @@ import equinox as eqx
 
 def compiler_options() -> dict[str, str]:
     """XLA compile options for programs that evaluate ocp_jax: the CPU backend's
-    memory-optimized scheduler (other backends ignore the option).
+    memory-optimized scheduler (a field of XLA's debug options, which every backend
+    accepts and only the CPU compiler reads).
 
     JAX takes compile options from the outermost `jax.jit` only (a nested jit with options
     is an error), so pass them to the one that wraps ocp_jax in your program:
