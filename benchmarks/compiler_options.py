@@ -15,9 +15,8 @@ import statistics
 import time
 
 import jax
-import jax.numpy as jnp
 import numpy as np
-from evaluate import OBJECTIVE, VALUE_AND_GRAD, cases, ocp, rectangle_cameras, scenes
+from evaluate import VALUE_AND_GRAD, banana_batch, cases, ocp
 
 
 def alternating(programs, args, blocks: int, budget: float = 0.05):
@@ -69,11 +68,9 @@ def main():
         times = alternating(both(VALUE_AND_GRAD, scene, cameras), (scene, cameras), args.blocks)
         print_row(f"{name} k={cameras.shape[0]}", *times, lambda s: f"{1e6 * s:.0f} us")
 
-    banana = scenes.banana()
-    per_set = jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE))
     rng = np.random.default_rng(1)
     for k, sets in ((1, 1024), (2, 512), (4, 256)):
-        batch = jnp.asarray(rectangle_cameras(sets * k, rng).reshape(sets, k, 2))
+        per_set, batch = banana_batch(rng, sets, k)
         times = alternating(both(jax.jit(jax.vmap(per_set)), batch), (batch,), args.blocks, 0.3)
         print_row(f"banana batch {sets}, k={k}", *times, lambda s, n=sets: f"{n / s:.0f}/s")
 

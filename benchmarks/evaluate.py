@@ -101,11 +101,11 @@ def engine_times(scene, cameras) -> tuple[float, float, float]:
     return compile_s, timed(VALUE, scene, cameras), timed(VALUE_AND_GRAD, scene, cameras)
 
 
-def banana_batch(rng):
-    """(value+grad of one single-camera set on the banana, 1024 such sets (1024, 1, 2)
+def banana_batch(rng, sets: int = 1024, k: int = 1):
+    """(value+grad of one set of k cameras on the banana, `sets` such sets (sets, k, 2)
     drawn from `rng` on its rectangle)."""
     banana = scenes.banana()
-    batch = jnp.asarray(rectangle_cameras(1024, rng)[:, None, :])
+    batch = jnp.asarray(rectangle_cameras(sets * k, rng).reshape(sets, k, 2))
     return jax.value_and_grad(lambda c: ocp.visibility(banana, c, OBJECTIVE)), batch
 
 
