@@ -12,7 +12,10 @@ Every occlusion event is a root of a smooth function F(t; theta) of the curve pa
    budget is reported, never silently truncated.
 3. **Refinement.** Safeguarded Newton in each bracket (bisection when a step would leave
    it; a step landing exactly on an end is accepted, and so is a step of a few ulps
-   out of it, which is rounding noise at the root), a fixed number of iterations.
+   out of it, which is rounding noise at the root), at most a fixed number of
+   iterations. A root is final once its last step d was so small that Newton's error
+   c d^2 (c = |F'' / 2F'|, estimated from the cubic) is below eps: no further step is
+   taken only to see that it no longer moves.
 
 `implicit_root` then attaches the derivative of the implicit function theorem: for
 F(t*(theta); theta) = 0, dt* = -(dF/dtheta . dtheta) / (dF/dt) (the general form of the
@@ -37,6 +40,10 @@ class Brackets(NamedTuple):
     guess: Float[Array, "*batch r"]
     sign_lo: Float[Array, "*batch r"]  # sign of F at lo
     turning: Bool[Array, "*batch r"]  # bracket ends are interpolated (near-double root)
+    # Newton's error constant |F'' / (2 F')| at the guess, from the Hermite cubic and at
+    # least 1 / (cell width): a Newton step of size d leaves an error of about
+    # curvature d^2 (inf where the cubic's slope vanishes).
+    curvature: Float[Array, "*batch r"]
     candidate: Bool[Array, "*batch r"]
     source: Int[Array, "*batch r"]  # flat index into the (lines, cells, 2) slots
     count: Int[Array, "*batch"]  # slots that held a root, before packing
@@ -170,12 +177,17 @@ def grid_brackets(
         p = ((a3 * guess + a2) * guess + a1) * guess + f_start
         dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
         guess = jnp.clip(guess - p / safe_divisor(dp), lo, hi)
+    # In t = start + width s: F'' / (2 F') = p''(s) / (2 p'(s) width).
+    dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
+    ddp = 6.0 * a3 * guess + 2.0 * a2
+    curvature = jnp.where(dp == 0, jnp.inf, jnp.abs(ddp) / (2.0 * jnp.abs(safe_divisor(dp))))
     return Brackets(
         start + width * lo,
         start + width * hi,
         start + width * guess,
         jnp.sign(f_lo),
         turning,
+        jnp.maximum(curvature, 1.0) / width,
         candidate,
         index,
         count,
@@ -184,8 +196,10 @@ def grid_brackets(
 
 def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     """Safeguarded Newton on `fn(t, args) -> (F, dF/dt, scale)` inside each bracket, at
-    most `iterations` steps, stopping once no root moves by more than 4 eps (no step
-    where no slot holds a candidate).
+    most `iterations` steps, stopping once every root is final: its last step moved it
+    by at most 4 eps, or was a Newton step d with 16 curvature d^2 <= eps, so that the
+    error left (about curvature d^2, quadratic convergence) is below eps / 16. No step
+    is taken where no slot holds a candidate.
 
     Returns the roots (no derivative attached) and whether each is a root: a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
@@ -209,9 +223,14 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
         inside = (newton >= lo) & (newton <= hi)
         # A step of a few ulps out of the bracket is rounding noise of F at its root
         # (XLA may round F differently where the sign test and the step use it): stay.
-        settling = jnp.abs(newton - t) <= 4 * eps
+        moved = jnp.abs(newton - t)
+        settling = moved <= 4 * eps
         new = jnp.where(inside, newton, jnp.where(settling, t, 0.5 * (lo + hi)))
-        settled = jnp.all((jnp.abs(new - t) <= 4 * eps) | ~brackets.candidate)
+        # Final: it no longer moves, or Newton's error after this step is below eps / 16.
+        final = (jnp.abs(new - t) <= 4 * eps) | (
+            inside & (16.0 * brackets.curvature * moved * moved <= eps)
+        )
+        settled = jnp.all(final | ~brackets.candidate)
         return i + 1, lo, hi, new, confirmed | ~same, settled
 
     def running(carry):

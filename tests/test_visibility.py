@@ -889,6 +889,7 @@ def test_newton_in_brackets_takes_no_step_without_candidates():
         guess=jnp.full(shape, 0.5),
         sign_lo=-jnp.ones(shape),
         turning=jnp.zeros(shape, bool),
+        curvature=jnp.ones(shape),
         candidate=candidate,
         source=jnp.zeros(shape, int),
         count=candidate.sum(1),
