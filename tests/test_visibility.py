@@ -901,6 +901,27 @@ def test_newton_in_brackets_takes_no_step_without_candidates():
     np.testing.assert_array_equal(valid, candidate)
 
 
+def test_newton_in_brackets_stops_once_newtons_error_is_below_eps():
+    """F(t) = exp(t) - 1.7 on cells of 1/8: the guess from the Hermite cubic is ~1e-7
+    off, Newton's first step leaves ~1e-14, its second ~1e-27. After the second the
+    predicted error (curvature d^2, curvature >= 8 here) is far below eps, so the root is
+    final: F is evaluated in two steps and once for the validity check, with no third
+    step only to see that the root no longer moves."""
+    calls = []
+
+    def fn(t, _):
+        jax.debug.callback(calls.append, t)
+        return jnp.exp(t) - 1.7, jnp.exp(t), jnp.exp(t) + 1.7
+
+    t = jnp.linspace(0.0, 1.0, 9)
+    brackets = _roots.grid_brackets(t, (jnp.exp(t) - 1.7)[None], jnp.exp(t)[None], 2)
+    assert abs(float(brackets.guess[0]) - math.log(1.7)) > 1e-9  # Newton has work to do
+    roots, valid = jax.jit(lambda b: _roots.newton_in_brackets(fn, None, b, 8))(brackets)
+    jax.effects_barrier()
+    assert len(calls) == 3
+    assert bool(valid[0]) and abs(float(roots[0]) - math.log(1.7)) <= 2e-16
+
+
 def test_implicit_root_derivative():
     """d t*/da for t*(a) = the larger root of (t - a)(t - a - 0.002) = 1e-7 t."""
 
