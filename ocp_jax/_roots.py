@@ -173,13 +173,19 @@ def grid_brackets(
     # O(h^4) approximation of F), so that few steps on F itself are needed.
     guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / safe_divisor(f_lo - f_hi))
     a1, a2, a3 = _hermite_coefficients(*cell_values)
+
+    def cubic(s):  # p(s), p'(s), p''(s)
+        return (
+            ((a3 * s + a2) * s + a1) * s + f_start,
+            (3.0 * a3 * s + 2.0 * a2) * s + a1,
+            6.0 * a3 * s + 2.0 * a2,
+        )
+
     for _ in range(2):
-        p = ((a3 * guess + a2) * guess + a1) * guess + f_start
-        dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
+        p, dp, _ = cubic(guess)
         guess = jnp.clip(guess - p / safe_divisor(dp), lo, hi)
-    # In t = start + width s: F'' / (2 F') = p''(s) / (2 p'(s) width).
-    dp = (3.0 * a3 * guess + 2.0 * a2) * guess + a1
-    ddp = 6.0 * a3 * guess + 2.0 * a2
+    # In t = start + width s: F'' / (2 F') = p''(s) / (2 p'(s) width), at least 1 / width.
+    _, dp, ddp = cubic(guess)
     curvature = jnp.where(dp == 0, jnp.inf, jnp.abs(ddp) / (2.0 * jnp.abs(safe_divisor(dp))))
     return Brackets(
         start + width * lo,
