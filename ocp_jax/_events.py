@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._jvp import is_zero, perturbed_jvp
+from ._materialize import materialize
 from ._roots import first_true, grid_brackets, solve_roots
 from ._vec import Vec, add, cross, dot, norm, sub
 
@@ -62,46 +63,9 @@ def sample(scene, cells: int) -> Samples:
     nodes = jnp.broadcast_to(t, (len(scene), cells + 1))
     x, dx, ddx = scene.components(nodes)
     if not scene.has_corners:
-        return materialize(Samples(t, x, dx, ddx))
+        return materialize(Samples(t, x, dx, ddx), scene)
     _, dx_end, ddx_end = scene.components_left(nodes)
-    return materialize(Samples(t, x, dx, ddx, dx_end, ddx_end))
-
-
-@jax.custom_jvp
-def materialize(tree):
-    """Identity that makes XLA compute `tree` once and store it.
-
-    XLA duplicates cheap elementwise producers (a curve evaluation is ~100 multiply-adds)
-    into every consumer fusion, so a curve sampled once and broadcast against many rays
-    would be re-evaluated per element. `optimization_barrier` does not survive the CPU
-    pipeline; a while loop whose trip count depends on the data (one trip) does.
-
-    Leaves of one shape and dtype go through the loop stacked: XLA's CPU backend has no
-    multi-output fusion, but computes a stack in one kernel (one per leaf otherwise).
-    """
-    leaves, treedef = jax.tree.flatten(tree)
-    groups = {}
-    for i, leaf in enumerate(leaves):
-        groups.setdefault((leaf.shape, leaf.dtype), []).append(i)
-    stacks = [jnp.stack([leaves[i] for i in group]) for group in groups.values()]
-    # The loop's condition is its carried flag (no kernel of its own, unless vmap
-    # batches it): true on entry unless the data is NaN, false after the first trip.
-    first = ~jnp.isnan(leaves[-1].ravel()[0])
-
-    def body(carry):
-        first, values = carry
-        return ~first, [jnp.where(first, v, v + v) for v in values]
-
-    stacks = jax.lax.while_loop(lambda c: c[0], body, (first, stacks))[1]
-    for group, stack in zip(groups.values(), stacks):
-        for i, leaf in zip(group, stack):
-            leaves[i] = leaf
-    return jax.tree.unflatten(treedef, leaves)
-
-
-@materialize.defjvp
-def _materialize_jvp(primals, tangents):
-    return materialize(*primals), tangents[0]
+    return materialize(Samples(t, x, dx, ddx, dx_end, ddx_end), scene)
 
 
 class Roots(NamedTuple):
@@ -282,7 +246,7 @@ def shadow_times(
     c0 = jax.lax.stop_gradient(camera)
     # Computed once (see `materialize`), not in every grid element of the search.
     ray, bend = materialize(
-        jax.lax.stop_gradient((sub(tangency.point, camera), tangency.curvature))
+        jax.lax.stop_gradient((sub(tangency.point, camera), tangency.curvature)), scene
     )
     ray_l = ray.map(lambda a: a[None])  # (1, l)
     length = norm(ray_l)

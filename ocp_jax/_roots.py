@@ -30,6 +30,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from ._jvp import perturbed_jvp
+from ._materialize import materialize
 
 
 class Brackets(NamedTuple):
@@ -218,10 +219,11 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     lo, hi, t = brackets.lo, brackets.hi, brackets.guess
     confirmed = ~brackets.turning
     eps = jnp.finfo(t.dtype).eps
+    key = (args, lo)  # for `materialize`: a scene parameter where args hold one
 
     def step(carry):
         i, lo, hi, t, confirmed, _ = carry
-        value, slope, _ = fn(t, args)
+        value, slope = materialize(fn(t, args)[:2], key)  # F once, not once per carry
         same = jnp.sign(value) == brackets.sign_lo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
@@ -245,7 +247,7 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
 
     carry = (0, lo, hi, t, confirmed, ~jnp.any(brackets.candidate))
     _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
-    value, _, scale = fn(t, args)
+    value, scale = materialize(fn(t, args)[::2], key)
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
     return t, valid

@@ -32,7 +32,6 @@ from ._events import (
     bounding_discs,
     crossover_times,
     join_sources,
-    materialize,
     range_times,
     sample,
     shadow_times,
@@ -41,6 +40,7 @@ from ._events import (
     tangency_times,
     wedge_edges,
 )
+from ._materialize import materialize
 from ._objectives import (
     AbstractLocalObjective,
     Foreshortened,
@@ -219,7 +219,7 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     tested = _interval_budget(options.max_camera_intervals, _corner_slots(scene), events.shape[1])
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
-    x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]))
+    x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]), scene)
     visible = visible_points(Vec.of(frozen.position), samples, sense, t_mid, x_mid, dx_mid)
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
@@ -230,7 +230,7 @@ def _integrand(t, args):
     """max over the camera groups that see the interval of q(x(t), x'(t), G) ||x'(t)||,
     for t of shape (m, e, g) (the groups' visibility `seen` has shape (G, m, e))."""
     scene, group, objective, seen = args
-    x, dx = materialize(scene.components(t)[:2])
+    x, dx = materialize(scene.components(t)[:2], scene)
     local = objective.evaluate(
         x.map(lambda a: a[None]),
         dx.map(lambda a: a[None]),

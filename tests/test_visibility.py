@@ -11,6 +11,7 @@ compiled functions of this module are module-level caches used by several tests.
 
 import functools
 import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +25,7 @@ import helpers as H
 import ocp_jax as ocp
 from helpers import FS, VL
 from ocp_jax import _events, _roots
+from ocp_jax._materialize import materialize
 from ocp_jax._vec import Vec
 
 J = np.array([[0.0, -1.0], [1.0, 0.0]])  # n = J x' (the library's Eq. 2.3)
@@ -854,12 +856,12 @@ def test_materialize_is_the_identity_with_an_identity_derivative():
         "c": jnp.arange(4),
         "d": Vec(jnp.arange(3.0) + 20, jnp.arange(3.0) + 30),
     }
-    out = jax.jit(_events.materialize)(tree)
+    out = jax.jit(materialize)(tree, tree)
     for want, got in zip(jax.tree.leaves(tree), jax.tree.leaves(out)):
         assert got.dtype == want.dtype
         np.testing.assert_array_equal(got, want)
     x = jnp.array([0.5, -2.0])
-    fn = lambda x: _events.materialize(Vec(jnp.sin(x), x**2)).y  # noqa: E731
+    fn = lambda x: materialize(Vec(jnp.sin(x), x**2), x).y  # noqa: E731
     np.testing.assert_allclose(jax.jacfwd(fn)(x), np.diag(2 * np.asarray(x)), rtol=1e-15)
     np.testing.assert_allclose(jax.jacrev(fn)(x), np.diag(2 * np.asarray(x)), rtol=1e-15)
 
@@ -920,6 +922,23 @@ def test_newton_in_brackets_stops_once_newtons_error_is_below_eps():
     jax.effects_barrier()
     assert len(calls) == 3
     assert bool(valid[0]) and abs(float(roots[0]) - math.log(1.7)) <= 2e-16
+
+
+def test_newton_in_brackets_evaluates_f_once_per_step():
+    """XLA's CPU backend computes an elementwise producer in every consumer fusion, so a
+    Newton step whose F updates five carried arrays would compile F five times (for a
+    degree-18 Bezier, hundreds of instructions each). `materialize` makes each step, and
+    the validity check after the loop, compute F in one kernel: the compiled program holds
+    two sines (F = sin t - 0.4 and F' = cos t per step are one stack; the check one more),
+    and `materialize`'s loop condition reads its key, no copy of F."""
+    fn = lambda t, _: (jnp.sin(t) - 0.4, jnp.cos(t), jnp.ones_like(t))  # noqa: E731
+    t = jnp.linspace(0.0, 1.0, 9)
+    brackets = _roots.grid_brackets(t, (jnp.sin(t) - 0.4)[None], jnp.cos(t)[None], 2)
+    solve = jax.jit(lambda b: _roots.newton_in_brackets(fn, None, b, 8))
+    hlo = solve.lower(brackets).compile().as_text()
+    assert len(re.findall(r" sine\(", hlo)) == 2
+    roots, valid = solve(brackets)
+    assert bool(valid[0]) and abs(float(roots[0]) - math.asin(0.4)) <= 2e-16
 
 
 def test_implicit_root_derivative():
