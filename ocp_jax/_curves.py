@@ -110,6 +110,14 @@ class AbstractCurve(eqx.Module):
         """Default number of grid cells for root bracketing (static)."""
         return 16
 
+    def costly_evaluation(self) -> bool:
+        """Whether one evaluation of `components` costs more than launching a kernel (a
+        long polynomial: hundreds of multiply-adds per point). Newton steps on such a
+        curve compute their F once and store it (`materialize`), where XLA would compute
+        it again in every update that reads it; on a cheap curve the stored copy's kernels
+        cost more than the repeated arithmetic (static)."""
+        return False
+
     def __call__(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
         return self.derivatives(t)[0]
 
@@ -184,6 +192,11 @@ class BezierCurve(AbstractCurve):
     @property
     def degree(self) -> int:
         return self.control_points.shape[0] - 1
+
+    def costly_evaluation(self) -> bool:
+        # Measured (README, "Each curve evaluation compiled once"): the degree-18 banana
+        # gains from stored Newton steps; cubic B-splines and circles lose.
+        return self.degree >= 8
 
     @classmethod
     def closed_c2(cls, points: Float[ArrayLike, "m 2"]) -> "BezierCurve":

@@ -114,7 +114,9 @@ def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations
     slopes = samples.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
     scale = samples.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
     brackets = grid_brackets(samples.t, values, slopes, budget, scale=scale)
-    t, valid = solve_roots(tangency_function, (scene, camera), brackets, iterations, 1.0)
+    t, valid = solve_roots(
+        tangency_function, (scene, camera), brackets, iterations, 1.0, scene.costly_evaluation()
+    )
     return Roots(t, valid, brackets.count)
 
 
@@ -308,7 +310,9 @@ def shadow_times(
     if pick is not None:
         line = jnp.take_along_axis(pick, line, 1)
     args = (scene, camera, Vec.of(tangency.point.stack()[line]))  # one gather
-    s, valid = solve_roots(shadow_function, args, brackets, iterations, 1.0)
+    s, valid = solve_roots(
+        shadow_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
+    )
     return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
 
 
@@ -326,7 +330,9 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
     values = (dot(sight, sight) - jax.lax.stop_gradient(reach) ** 2)[:, None]
     slopes = samples.at_nodes(lambda dx, _: 2.0 * dot(sight, dx)[:, None])
     brackets = grid_brackets(samples.t, values, slopes, budget)
-    t, valid = solve_roots(range_function, (scene, camera, reach), brackets, iterations, 1.0)
+    t, valid = solve_roots(
+        range_function, (scene, camera, reach), brackets, iterations, 1.0, scene.costly_evaluation()
+    )
     return Roots(t, valid, brackets.count)
 
 
@@ -357,5 +363,7 @@ def crossover_times(
     values, slopes = nodes if samples.dx_end is None else zip(*nodes)
     brackets = grid_brackets(samples.t, values, slopes, budget)
     args = (scene, group_a, group_b, objective)
-    t, valid = solve_roots(crossover_function, args, brackets, iterations, 1.0)
+    t, valid = solve_roots(
+        crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
+    )
     return Roots(t, valid, brackets.count)

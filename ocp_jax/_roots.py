@@ -201,7 +201,7 @@ def grid_brackets(
     )
 
 
-def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
+def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: bool = False):
     """Safeguarded Newton on `fn(t, args) -> (F, dF/dt, scale)` inside each bracket, at
     most `iterations` steps, stopping once every root is final: its last step moved it
     by at most 4 eps, or was a Newton step d with 16 curvature d^2 <= eps, so that the
@@ -212,6 +212,12 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     from an exact sign change always is; one from an interpolated (near-double) bracket
     only once an iterate has confirmed the sign change (F of the other sign than at the
     bracket's start) or |F| <= 1e3 eps scale at the end.
+
+    With `store`, each step computes F and F' in one kernel and stores them, as does the
+    validity check (`materialize`): XLA's CPU backend otherwise computes F in each of the
+    five updates that read it (the bracket's ends, the iterate, the confirmed sign and
+    the stopping flag). Worth it where F is costly (a long polynomial), not where the
+    stored copy's kernels cost more than the repeated arithmetic.
     """
     # Each array of the state is a carry of its own: one stacked carry launches fewer
     # kernels per step, but under vmap XLA then evaluates F once per stacked row (the
@@ -221,9 +227,14 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
     eps = jnp.finfo(t.dtype).eps
     key = (args, lo)  # for `materialize`: a scene parameter where args hold one
 
+    def evaluate(t, used):  # the outputs `used` of fn (indices), stored where `store`
+        every = fn(t, args)
+        outputs = tuple(every[i] for i in used)
+        return materialize(outputs, key) if store else outputs
+
     def step(carry):
         i, lo, hi, t, confirmed, _ = carry
-        value, slope = materialize(fn(t, args)[:2], key)  # F once, not once per carry
+        value, slope = evaluate(t, (0, 1))
         same = jnp.sign(value) == brackets.sign_lo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
@@ -247,7 +258,7 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int):
 
     carry = (0, lo, hi, t, confirmed, ~jnp.any(brackets.candidate))
     _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
-    value, scale = materialize(fn(t, args)[::2], key)
+    value, scale = evaluate(t, (0, 2))
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
     return t, valid
@@ -270,13 +281,14 @@ def _implicit_root_jvp(fn, primals, tangents):
     return t, -dvalue / slope
 
 
-def solve_roots(fn, args, brackets: Brackets, iterations: int, fill: float):
-    """Roots of `fn` in the packed brackets, differentiable in `args`.
+def solve_roots(fn, args, brackets: Brackets, iterations: int, fill: float, store: bool):
+    """Roots of `fn` in the packed brackets, differentiable in `args` (`store`: see
+    `newton_in_brackets`).
 
     **Returns:** (t, valid), invalid slots set to `fill` with zero derivative.
     """
     t, valid = newton_in_brackets(
-        fn, jax.lax.stop_gradient(args), jax.lax.stop_gradient(brackets), iterations
+        fn, jax.lax.stop_gradient(args), jax.lax.stop_gradient(brackets), iterations, store
     )
     t = implicit_root(fn, t, args)
     return jnp.where(valid, t, fill), valid

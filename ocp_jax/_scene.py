@@ -127,6 +127,10 @@ class Scene(eqx.Module):
             real[i, : len(c)] = True
         return times, real
 
+    def costly_evaluation(self) -> bool:
+        """Whether some curve is costly to evaluate (see `AbstractCurve.costly_evaluation`)."""
+        return any(c.costly_evaluation() for c in self.curves)
+
     def grid_alignment(self) -> int:
         """The grid cell count must be a multiple of this (the least common multiple of
         the curves' segment counts), so that every corner is a grid node."""

@@ -334,3 +334,17 @@ def test_curves_from_constants_can_be_built_inside_jit():
         return ocp.BSplineCurve(points)(jnp.zeros(1))[0] * scale
 
     np.testing.assert_allclose(first_point(2.0), 2 * np.asarray(ocp.BSplineCurve(points)(jnp.zeros(1))[0]))
+
+
+def test_costly_evaluation_marks_long_polynomials_only():
+    """Newton steps store F (`materialize`) only on scenes with a costly curve: a Bezier
+    of degree >= 8 (the degree-18 banana), not cubic B-splines, low-degree Beziers or
+    conics, whose stored copy's kernels cost more than recomputing F (README)."""
+    banana = ocp.scenes.banana()
+    assert banana.curves[0].degree == 18 and banana.costly_evaluation()
+    cubic = ocp.BezierCurve.closed_c2(np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 2.0]]))
+    assert cubic.degree < 8 and not cubic.costly_evaluation()
+    blobs = ocp.scenes.blobs(3)
+    circle = ocp.Circle(jnp.array([5.0, 5.0]), jnp.array(1.0))
+    assert not blobs.costly_evaluation() and not ocp.Scene([circle]).costly_evaluation()
+    assert ocp.Scene([circle, *banana.curves]).costly_evaluation()

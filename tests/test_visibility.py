@@ -833,7 +833,7 @@ def _pair_roots(a, budget):
     t = jnp.linspace(0.0, 1.0, 9)  # cells of 1/8
     values, slopes, _ = _pair_function(t, a)
     brackets = _roots.grid_brackets(t, values[None], slopes[None], budget)
-    roots, valid = _roots.solve_roots(_pair_function, a, brackets, 30, 1.0)
+    roots, valid = _roots.solve_roots(_pair_function, a, brackets, 30, 1.0, False)
     return brackets, roots, valid
 
 
@@ -924,21 +924,22 @@ def test_newton_in_brackets_stops_once_newtons_error_is_below_eps():
     assert bool(valid[0]) and abs(float(roots[0]) - math.log(1.7)) <= 2e-16
 
 
-def test_newton_in_brackets_evaluates_f_once_per_step():
+def test_newton_in_brackets_stores_f_once_per_step():
     """XLA's CPU backend computes an elementwise producer in every consumer fusion, so a
-    Newton step whose F updates five carried arrays would compile F five times (for a
-    degree-18 Bezier, hundreds of instructions each). `materialize` makes each step, and
-    the validity check after the loop, compute F in one kernel: the compiled program holds
-    two sines (F = sin t - 0.4 and F' = cos t per step are one stack; the check one more),
-    and `materialize`'s loop condition reads its key, no copy of F."""
+    Newton step whose F updates five carried arrays compiles F five times (for a
+    degree-18 Bezier, hundreds of instructions each). With `store`, each step and the
+    validity check after the loop compute F in one kernel (`materialize`, whose loop
+    condition reads its key, no copy of F): F = sin t - 0.4 and F' = cos t are one stack
+    per step, plus one sine for the check."""
     fn = lambda t, _: (jnp.sin(t) - 0.4, jnp.cos(t), jnp.ones_like(t))  # noqa: E731
     t = jnp.linspace(0.0, 1.0, 9)
     brackets = _roots.grid_brackets(t, (jnp.sin(t) - 0.4)[None], jnp.cos(t)[None], 2)
-    solve = jax.jit(lambda b: _roots.newton_in_brackets(fn, None, b, 8))
-    hlo = solve.lower(brackets).compile().as_text()
-    assert len(re.findall(r" sine\(", hlo)) == 2
-    roots, valid = solve(brackets)
-    assert bool(valid[0]) and abs(float(roots[0]) - math.asin(0.4)) <= 2e-16
+    for store, sines in ((True, 2), (False, 5)):
+        solve = jax.jit(lambda b, s=store: _roots.newton_in_brackets(fn, None, b, 8, s))
+        hlo = solve.lower(brackets).compile().as_text()
+        assert len(re.findall(r" sine\(", hlo)) == sines, store
+        roots, valid = solve(brackets)
+        assert bool(valid[0]) and abs(float(roots[0]) - math.asin(0.4)) <= 2e-16
 
 
 def test_implicit_root_derivative():
