@@ -4,7 +4,8 @@
 
 Per row of evaluate.py's table (scene and number of cameras k): the seconds spent
 tracing to a jaxpr, lowering to StableHLO and compiling with XLA, the jaxpr's equation
-count (sub-jaxprs included), the compiled program's top-level kernels (the
+count (sub-jaxprs included), the compiled program's HLO instructions (every computation,
+fused ones included: the code XLA hands to LLVM), its top-level kernels (the
 instructions of its entry computation that run, loops counted once), and the kernels
 one call launches (loop trips included, counted by the JAX profiler), which bound the
 run time of small scenes; and how many kernels XLA splits between threads (its parallel
@@ -33,6 +34,10 @@ _INSTRUCTION = re.compile(r"^\s+(?:ROOT )?%(\S+) = .*? ([a-z][\w-]*)\(", re.MULT
 
 def equations(jaxpr) -> int:
     return sum(1 + sum(equations(sub) for sub in jaxprs_in_params(e.params)) for e in jaxpr.eqns)
+
+
+def instructions(hlo_text: str) -> int:
+    return len(_INSTRUCTION.findall(hlo_text))
 
 
 def top_level_kernels(hlo_text: str) -> int:
@@ -77,6 +82,7 @@ def split(scene, cameras):
         lowered_s - traced_s,
         compiled_s - lowered_s,
         equations(traced.jaxpr.jaxpr),
+        instructions(hlo_text),
         top_level_kernels(hlo_text),
         launches(compiled, hlo_text, scene, cameras),
         split_kernels(hlo_text),
@@ -87,14 +93,16 @@ def main():
     jax.jit(lambda x: x + 1)(1.0)  # JAX's own start-up is not the scene's compile time
     print(f"JAX {jax.__version__} on {jax.devices()[0].device_kind}, float64, value+grad")
     columns = [("scene", 8), ("k", 2), ("trace s", 8), ("lower s", 8), ("XLA s", 7)]
-    columns += [("total s", 8), ("equations", 10), ("kernels", 8), ("launches", 9)]
+    columns += [("total s", 8), ("equations", 10), ("instructions", 13), ("kernels", 8)]
+    columns += [("launches", 9)]
     columns += [("split", 6)]
     header, widths = zip(*columns)
     print_row(header, widths)
     for name, scene, cameras in cases(np.random.default_rng(0)):
-        trace, lower, xla, eqns, kernels, launched, split_count = split(scene, cameras)
+        trace, lower, xla, eqns, size, kernels, launched, split_count = split(scene, cameras)
         cells = [name, cameras.shape[0], f"{trace:.2f}", f"{lower:.2f}", f"{xla:.2f}"]
-        cells += [f"{trace + lower + xla:.1f}", eqns, kernels, f"{launched:.0f}", split_count]
+        cells += [f"{trace + lower + xla:.1f}", eqns, size, kernels, f"{launched:.0f}"]
+        cells += [split_count]
         print_row(cells, widths)
 
 
