@@ -11,6 +11,7 @@ from ._baselines import greedy as greedy
 from ._baselines import slsqp as slsqp
 from ._camera import Camera as Camera
 from ._compile import compiler_options as compiler_options
+from ._curves import AbstractConic as AbstractConic
 from ._curves import AbstractCurve as AbstractCurve
 from ._curves import BezierCurve as BezierCurve
 from ._curves import BSplineCurve as BSplineCurve

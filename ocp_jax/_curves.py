@@ -18,7 +18,15 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ._vec import Vec, add, scale
 
-__all__ = ["AbstractCurve", "BSplineCurve", "BezierCurve", "Circle", "Ellipse", "PiecewiseCurve"]
+__all__ = [
+    "AbstractConic",
+    "AbstractCurve",
+    "BSplineCurve",
+    "BezierCurve",
+    "Circle",
+    "Ellipse",
+    "PiecewiseCurve",
+]
 
 _TWO_PI = 2.0 * math.pi
 
@@ -324,7 +332,17 @@ class BSplineCurve(AbstractCurve):
         return 4 * self.control_points.shape[0]  # four per knot span, aligned with knots
 
 
-class Circle(AbstractCurve):
+class AbstractConic(AbstractCurve):
+    """A curve that an affine map takes onto the unit circle, x(t) to (cos 2 pi t,
+    sin 2 pi t): circles and ellipses. Tangency and line crossings are preserved by
+    affine maps, so their events have closed forms (`_conics.py`)."""
+
+    @abc.abstractmethod
+    def unit_frame(self) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
+        """(c, M) with M (x(t) - c) = (cos 2 pi t, sin 2 pi t)."""
+
+
+class Circle(AbstractConic):
     """x(t) = c + r (cos 2 pi t, sin 2 pi t), counter-clockwise."""
 
     center: Float[Array, "2"]
@@ -354,8 +372,11 @@ class Circle(AbstractCurve):
             Vec(-_TWO_PI * w * c, -_TWO_PI * w * s),
         )
 
+    def unit_frame(self):
+        return self.center, jnp.eye(2, dtype=self.center.dtype) / self.radius
 
-class Ellipse(AbstractCurve):
+
+class Ellipse(AbstractConic):
     """x(t) = c + R(angle) (a cos 2 pi t, b sin 2 pi t), counter-clockwise."""
 
     center: Float[Array, "2"]
@@ -397,6 +418,12 @@ class Ellipse(AbstractCurve):
             scale(_TWO_PI, rotate(-a * s, b * c)),
             scale(-(_TWO_PI**2), local),
         )
+
+    def unit_frame(self):
+        # M = diag(1/a, 1/b) R(-angle)
+        cos, sin = jnp.cos(self.angle), jnp.sin(self.angle)
+        rows = jnp.stack([jnp.stack([cos, sin]), jnp.stack([-sin, cos])])
+        return self.center, rows / self.semi_axes[:, None]
 
     def panels(self):
         return 8
@@ -586,7 +613,9 @@ def _to_power_of_two(segments: list[Array]) -> list[Array]:
     concrete = _is_concrete(*segments)
     for split in range(target - len(segments)):
         if concrete:  # the longest control polygon
-            lengths = [np.linalg.norm(np.diff(np.asarray(s), axis=0), axis=1).sum() for s in segments]
+            lengths = [
+                np.linalg.norm(np.diff(np.asarray(s), axis=0), axis=1).sum() for s in segments
+            ]
             j = int(np.argmax(lengths))
         else:  # traced points: every other segment from the start
             j = 2 * split

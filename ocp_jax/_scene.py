@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._curves import AbstractCurve
+from ._curves import AbstractConic, AbstractCurve
 from ._vec import Vec
 
 __all__ = ["Scene"]
@@ -126,6 +126,15 @@ class Scene(eqx.Module):
             times[i, : len(c)] = c
             real[i, : len(c)] = True
         return times, real
+
+    @property
+    def conics_only(self) -> bool:
+        """Whether every curve is a conic (then the events have closed forms, `_conics.py`)."""
+        return all(isinstance(c, AbstractConic) for c in self.curves)
+
+    def conic_frames(self) -> tuple[Float[Array, "m 2"], Float[Array, "m 2 2"]]:
+        """Every curve's `AbstractConic.unit_frame`, stacked (a scene of conics only)."""
+        return self._map(lambda c: c.unit_frame())
 
     def costly_evaluation(self) -> bool:
         """Whether some curve is costly to evaluate (see `AbstractCurve.costly_evaluation`)."""

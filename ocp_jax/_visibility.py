@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._camera import Camera
+from ._conics import conic_shadow_times, conic_tangency_times
 from ._events import (
     Roots,
     Samples,
@@ -70,10 +71,14 @@ class VisibilityOptions(eqx.Module):
       view wedge's edges), `max_range_crossings` (of a camera's range circle): root
       budgets per curve and camera; `max_crossovers`: per curve and pair of camera
       groups (of cameras, or of camera pairs for `Reconstruction`).
-      Exceeding one raises an error naming the option.
+      Exceeding one raises an error naming the option. In a scene of conics only
+      (circles, ellipses) the tangency and shadow times have closed forms: two tangency
+      times per conic, and one shadow slot per ray and conic, packed into `max_shadows`
+      only where there are more rays.
     - `max_intervals`: per curve, the intervals between the events of all cameras that
       are integrated (the budgets above are per camera and rarely all used at once); None
-      (default) takes the panels and corners plus half of the cameras' event budgets.
+      (default) takes the panels and corners plus half of the cameras' event budgets
+      (for a scene of conics, all of its closed-form event slots).
     - `max_camera_intervals`: per curve and camera, the intervals of the camera's own
       partition that are tested for visibility (the test of every query point against
       every curve is the costliest step of scenes with many objects); None (default)
@@ -180,15 +185,21 @@ def _intervals(events: Float[Array, "m e"]):
     return events, ends
 
 
-def _corner_slots(scene: Scene) -> int:
-    """The event slots that every camera gives the corners of each curve."""
+def _fixed_slots(scene: Scene, slots: int) -> int:
+    """Of the `slots` event slots of one camera, those that the interval budgets keep
+    whole: every one for a scene of conics (their closed-form events fill the slots
+    that can be filled, not root budgets), else the corners of each curve (every camera
+    repeats them)."""
+    if scene.conics_only:
+        return slots
     return scene.corners()[0].shape[1] if scene.has_corners else 0
 
 
 def _interval_budget(option: int | None, fixed: int, slots: int) -> int:
     """A static budget of the intervals between `slots` sorted events (padded with t = 1)
-    that are kept: `option`, or by default the `fixed` ones (breakpoints, corners) plus
-    half of the others, the cameras' root budgets, which are rarely all used at once."""
+    that are kept: `option`, or by default the `fixed` ones (breakpoints, corners,
+    closed-form events) plus half of the others, the cameras' root budgets, which are
+    rarely all used at once."""
     return min(option, slots) if option is not None else fixed + (slots - fixed + 1) // 2
 
 
@@ -196,7 +207,10 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
     frozen = jax.lax.stop_gradient(pose)  # the visibility decisions carry no derivative
-    tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
+    if scene.conics_only:  # events in closed form
+        tangents = conic_tangency_times(scene.conic_frames(), camera)
+    else:
+        tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
     sources = tangency_points(scene, tangents)
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
     if scene.has_corners:
@@ -207,7 +221,10 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
         sources = sources._replace(valid=sources.valid & in_view(frozen, sources.point))
         edges = pose.heading + jnp.stack([pose.half_fov, -pose.half_fov])
         sources = join_sources(sources, wedge_edges(camera, Vec(jnp.cos(edges), jnp.sin(edges))))
-    shadows = shadow_times(scene, camera, samples, sources, options.max_shadows, iters)
+    if scene.conics_only:
+        shadows = conic_shadow_times(scene.conic_frames(), camera, sources, options.max_shadows)
+    else:
+        shadows = shadow_times(scene, camera, samples, sources, options.max_shadows, iters)
     pieces.append(shadows.t)
     ranges = None
     if pose.range is not None:
@@ -216,7 +233,8 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # The visibility decision carries no derivative. Only the first `tested` intervals
     # are tested; the others are padding at t = 1 (their count is checked in `_failures`).
-    tested = _interval_budget(options.max_camera_intervals, _corner_slots(scene), events.shape[1])
+    slots = events.shape[1]
+    tested = _interval_budget(options.max_camera_intervals, _fixed_slots(scene, slots), slots)
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]), scene)
@@ -335,8 +353,10 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         pieces.extend(crossovers.t)
     union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
-    # Every camera repeats the corners among its events (zero-length intervals).
-    fixed = pieces[0].shape[1] + len(partitions.events) * _corner_slots(scene)
+    # Every camera repeats the corners among its events (zero-length intervals); the
+    # closed-form events of conics are kept whole (`_fixed_slots`).
+    slots = partitions.events.shape[-1]
+    fixed = pieces[0].shape[1] + len(partitions.events) * _fixed_slots(scene, slots)
     budget = _interval_budget(options.max_intervals, fixed, union.shape[1])
     used = jnp.sum(union < 1.0, axis=1)
     start, end = _intervals(union[:, :budget])
@@ -410,9 +430,8 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
                 "max_range_crossings",
             )
         )
-    tested = _interval_budget(
-        options.max_camera_intervals, _corner_slots(scene), partitions.events.shape[-1]
-    )
+    slots = partitions.events.shape[-1]
+    tested = _interval_budget(options.max_camera_intervals, _fixed_slots(scene, slots), slots)
     budgets.append(
         (
             jnp.sum(partitions.events < 1.0, axis=-1),

@@ -24,7 +24,7 @@ from scipy import integrate
 import helpers as H
 import ocp_jax as ocp
 from helpers import FS, VL
-from ocp_jax import _events, _roots
+from ocp_jax import _conics, _events, _roots
 from ocp_jax._materialize import materialize
 from ocp_jax._vec import Vec
 
@@ -786,6 +786,104 @@ def test_event_time_derivatives_wrt_scene_match_finite_differences():
         np.testing.assert_allclose(js[..., j][sh_valid], fd_s[sh_valid], rtol=1e-5, atol=1e-7)
     # invalid (padded) slots carry zero, finite derivatives
     assert np.all(jt[~tan_valid] == 0) and np.all(js[~sh_valid] == 0)
+
+
+# ---------------------------------------------------------------------------
+# scenes of conics: closed-form events (_conics.py) against the root solves
+# ---------------------------------------------------------------------------
+CONICS = ocp.Scene(
+    [
+        ocp.Circle(jnp.array([0.0, 0.0]), 1.0),
+        ocp.Ellipse(jnp.array([2.5, 1.3]), jnp.array([0.6, 0.3]), 0.6),
+        ocp.Circle(jnp.array([-1.6, 2.1]), 0.5),
+    ],
+    room=ocp.Circle(jnp.array([0.4, 0.6]), 6.0),
+)
+CONIC_CAMERAS = [(4.4, 2.2), (-3.5, 3.8), (3.2, -1.2)]
+WEDGE = Vec(jnp.cos(jnp.array([2.5, 3.5])), jnp.sin(jnp.array([2.5, 3.5])))  # edge directions
+
+
+def _conic_events(flat, camera, closed: bool):
+    """Tangency and shadow times (of the tangency points and of two wedge edges) on
+    CONICS (its parameters flattened), in closed form or by the root solves."""
+    scene = ravel_pytree(CONICS)[1](flat)
+    cam = Vec(camera[0], camera[1])
+    iters = OPTIONS.newton_iterations
+    samples = _events.sample(jax.lax.stop_gradient(scene), grid_cells(scene))
+    if closed:
+        tan = _conics.conic_tangency_times(scene.conic_frames(), cam)
+    else:
+        tan = _events.tangency_times(scene, cam, samples, OPTIONS.max_tangents, iters)
+    sources = _events.join_sources(
+        _events.tangency_points(scene, tan), _events.wedge_edges(cam, WEDGE)
+    )
+    if closed:
+        sh = _conics.conic_shadow_times(scene.conic_frames(), cam, sources, 64)
+    else:
+        sh = _events.shadow_times(scene, cam, samples, sources, OPTIONS.max_shadows, iters)
+    return (tan.t, sh.t), (tan.valid, sh.valid, sh.count)
+
+
+@functools.cache
+def conic_events(closed: bool):
+    """Jitted: the event times, their validity and count, and their Jacobians in the
+    scene's parameters and the camera."""
+
+    def fn(flat, camera):
+        jac = jax.jacfwd(lambda f, c: _conic_events(f, c, closed)[0], argnums=(0, 1))
+        return _conic_events(flat, camera, closed), jac(flat, camera)
+
+    return jax.jit(fn)
+
+
+def _by_curve(times, valid, jacobians):
+    """Per curve: the valid times, sorted, and their Jacobian rows in that order."""
+    out = []
+    for i in range(times.shape[0]):
+        keep = np.nonzero(valid[i])[0]
+        order = keep[np.argsort(times[i, keep])]
+        out.append((times[i, order], np.concatenate([j[i, order] for j in jacobians], -1)))
+    return out
+
+
+@pytest.mark.parametrize("ci", range(len(CONIC_CAMERAS)))
+def test_conic_events_in_closed_form_match_the_root_solves(ci):
+    """The closed forms of the tangency and shadow times of circles and ellipses (a room
+    circle around them) against the grid + Newton root solves with implicit-function
+    derivatives, which every other curve uses: the same times (to 1e-12) with the same
+    derivatives in every parameter of the scene and the camera (to 1e-8 relative).
+
+    The closed form keeps only the first crossing of each ray with an object; the root
+    solves also find where it leaves the object, on the far side, which faces away from
+    the camera (hidden by the object itself on both sides: no change of visibility)."""
+    flat, camera = ravel_pytree(CONICS)[0], jnp.asarray(CONIC_CAMERAS[ci])
+    assert CONICS.conics_only and not H.THREE.conics_only
+    results = [
+        jax.tree.map(np.asarray, conic_events(closed)(flat, camera)) for closed in (True, False)
+    ]
+    far_sides = 0
+    for kind in range(2):  # tangency, shadow times
+        closed, solved = [
+            _by_curve(times[kind], flags[kind], [jac[kind][0], jac[kind][1]])
+            for (times, flags), jac in results
+        ]
+        for i, ((t_closed, j_closed), (t_solved, j_solved)) in enumerate(zip(closed, solved)):
+            distance = np.abs(t_solved[:, None] - t_closed[None])
+            match = distance.argmin(0) if t_closed.size else np.zeros(0, int)
+            assert len(set(match)) == t_closed.size
+            np.testing.assert_allclose(t_closed, t_solved[match], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(j_closed, j_solved[match], rtol=1e-8, atol=1e-10)
+            far = np.setdiff1d(np.arange(t_solved.size), match)
+            x, dx = (np.asarray(a) for a in CONICS.curves[i].derivatives(t_solved[far])[:2])
+            outward = np.stack([dx[:, 1], -dx[:, 0]], -1)  # counter-clockwise curves
+            assert kind == 1 and i < 3 or far.size == 0  # only shadows on objects
+            assert np.all(np.sum(outward * (np.asarray(camera) - x), -1) < 0)  # facing away
+            far_sides += far.size
+    (_, (tan_valid, sh_valid, count)), _ = results[0]
+    assert np.all(tan_valid.sum(1) == [2, 2, 2, 0])  # two per object, none on the room
+    assert np.all(sh_valid.sum(1) == count)
+    assert count[3] == 8  # every ray (6 tangent, 2 wedge edges) meets the room once
+    assert count[:3].sum() >= 1 and far_sides == count[:3].sum()  # objects shadow others
 
 
 @pytest.mark.parametrize("j", range(len(KIDNEY_NEAR_DOUBLE)))

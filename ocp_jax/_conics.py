@@ -1,0 +1,116 @@
+"""Occlusion events of scenes of conics in closed form (circles and ellipses).
+
+An affine map p' = M (p - c) takes a conic onto the unit circle, x(t) to (cos 2 pi t,
+sin 2 pi t) (`AbstractConic.unit_frame`); it maps lines to lines and keeps tangency and
+the order of points along a line, so both kinds of event have closed forms there:
+
+- Tangency times (Eqs. 5.21, 5.33): from the camera C' = M (C - c), |C'| > 1, the lines
+  of sight touch the unit circle at the angles phi +- arccos(1 / |C'|), phi the polar
+  angle of C'. (A camera inside the conic, |C'| < 1, has none: the room.)
+- Shadow times (Eqs. 5.22, 5.34): the ray C + lambda (P - C) through a ray source P meets
+  the conic where |C' + lambda u'|^2 = 1, u' = M (P - C): a quadratic in lambda, kept
+  beyond the source's depth (lambda > 1 behind a tangency point, > 0 for a view wedge's
+  edge). A conic is strictly convex, so the ray of a tangency point meets its own conic
+  there only.
+
+They replace the grid brackets and Newton steps of `_events.py` where every curve of the
+scene is a conic: a few kernels instead of two loops, with exact derivatives by autodiff
+of the closed forms (the same as the implicit-function rules of `_roots.py`).
+"""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._events import RaySources, Roots
+from ._roots import first_true, safe_divisor
+from ._vec import Vec, dot, sub
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _to_unit(frames, v: Vec, shift: bool) -> Vec:
+    """M_i (v_i - c_i) (or M_i v_i without `shift`) for every conic i, where the arrays of
+    `v` have a leading axis of one row per conic (or of one row for all)."""
+    center, matrix = frames
+    ones = (1,) * (v.x.ndim - 1)
+
+    def per_conic(a):  # (m,) -> (m, 1, ..., 1), against v's arrays
+        return a.reshape(a.shape + ones)
+
+    if shift:
+        v = Vec(v.x - per_conic(center[:, 0]), v.y - per_conic(center[:, 1]))
+    m = [[per_conic(matrix[:, i, j]) for j in range(2)] for i in range(2)]
+    return Vec(m[0][0] * v.x + m[0][1] * v.y, m[1][0] * v.x + m[1][1] * v.y)
+
+
+def _angle(point: Vec, valid) -> Array:
+    """The polar angle of `point` where `valid`, 0 elsewhere (with a finite derivative:
+    arctan2 has none at the origin)."""
+    return jnp.arctan2(jnp.where(valid, point.y, 0.0), jnp.where(valid, point.x, 1.0))
+
+
+def conic_tangency_times(
+    frames: tuple[Float[Array, "m 2"], Float[Array, "m 2 2"]], camera: Vec
+) -> Roots:
+    """The two tangency times of every conic seen from `camera` (none from inside)."""
+    origin = _to_unit(frames, camera.map(lambda a: a[None]), shift=True)  # (m,)
+    squared = dot(origin, origin)
+    outside = squared > 1.0
+    half = jnp.arccos(1.0 / jnp.sqrt(jnp.where(outside, squared, 4.0)))
+    angle = _angle(origin, outside)[:, None] + jnp.stack([half, -half], -1)
+    t = jnp.mod(angle / _TWO_PI, 1.0)
+    valid = jnp.broadcast_to(outside[:, None], t.shape)
+    return Roots(jnp.where(valid, t, 1.0), valid, jnp.where(outside, 2, 0))
+
+
+def conic_shadow_times(
+    frames: tuple[Float[Array, "m 2"], Float[Array, "m 2 2"]],
+    camera: Vec,
+    sources: RaySources,
+    budget: int,
+) -> Roots:
+    """Where the rays from `camera` through the ray sources meet every conic first, if
+    beyond the source's depth: one slot per ray and conic, packed into `budget` slots per
+    conic when there are more (the count of hits is returned, so that an overflow is
+    reported).
+
+    `sources` starts with the two tangency points of every conic in turn (as
+    `tangency_points` gives them for `conic_tangency_times`), whose rays are not searched
+    on their own conic. Only the first crossing in front of the camera is an event: the
+    ray leaves an object on its far side, which faces away from the camera (hidden by the
+    object itself on both sides of the crossing); a room's first crossing in front of a
+    camera inside it is its only one.
+    """
+    m = frames[0].shape[0]
+    lines = sources.depth.shape[0]
+    # Static: for conic i, every source but its own two tangency points.
+    other = np.array(
+        [[s for s in range(lines) if s >= 2 * m or s // 2 != i] for i in range(m)], int
+    ).reshape(m, lines - 2)
+    ray = sub(sources.point, camera).map(lambda a: a[other])  # (m, l - 2)
+    origin = _to_unit(frames, camera.map(lambda a: a[None, None]), shift=True)  # (m, 1)
+    direction = _to_unit(frames, ray, shift=False)
+    # |origin + lambda direction|^2 = 1: a lambda^2 + 2 b lambda + c = 0.
+    a = dot(direction, direction)
+    b = dot(origin, direction)
+    c = dot(origin, origin) - 1.0
+    disc = b * b - a * c
+    real = disc > 0.0
+    root = jnp.sqrt(jnp.where(real, disc, 1.0))
+    q = -(b + jnp.where(b >= 0.0, root, -root))  # the roots q / a and c / q, stably
+    roots = q / a, c / safe_divisor(q)
+    # The first crossing in front: the nearer root outside the conic (c > 0), the
+    # positive one inside it (c < 0, a room).
+    lam = jnp.where(c > 0.0, jnp.minimum(*roots), jnp.maximum(*roots))
+    valid = real & (lam > sources.depth[other]) & sources.valid[other]
+    hit = Vec(*(o + lam * d for o, d in zip(origin, direction)))
+    t = jnp.where(valid, jnp.mod(_angle(hit, valid) / _TWO_PI, 1.0), 1.0)
+    count = jnp.sum(valid, axis=-1)
+    if t.shape[1] > budget:
+        index, filled, _ = first_true(valid, budget)
+        t = jnp.where(filled, jnp.take_along_axis(t, index, -1), 1.0)
+        valid = filled
+    return Roots(t, valid, count)
