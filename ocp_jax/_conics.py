@@ -86,6 +86,7 @@ def conic_shadow_times(
     """
     m = frames[0].shape[0]
     lines = sources.depth.shape[0]
+    assert lines - 2 * m in (0, 2), "sources: two tangency points per conic, wedge edges"
     # Static: for conic i, every source but its own two tangency points.
     other = np.array(
         [[s for s in range(lines) if s >= 2 * m or s // 2 != i] for i in range(m)], int

@@ -185,13 +185,14 @@ def _intervals(events: Float[Array, "m e"]):
     return events, ends
 
 
-def _fixed_slots(scene: Scene, slots: int) -> int:
-    """Of the `slots` event slots of one camera, those that the interval budgets keep
-    whole: every one for a scene of conics (their closed-form events fill the slots
-    that can be filled, not root budgets), else the corners of each curve (every camera
-    repeats them)."""
+def _fixed_slots(scene: Scene, events, ranges: Roots | None) -> int:
+    """Of one camera's event slots (the last axis of `events`), those that the interval
+    budgets keep whole. For a scene of conics, all but the range circle's crossings (a
+    root budget, like those of other curves): the closed-form slots hold every event that
+    can occur, and a room or a large object behind small ones fills them. Else the
+    corners of each curve (every camera repeats them)."""
     if scene.conics_only:
-        return slots
+        return events.shape[-1] - (0 if ranges is None else ranges.t.shape[-1])
     return scene.corners()[0].shape[1] if scene.has_corners else 0
 
 
@@ -233,8 +234,8 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # The visibility decision carries no derivative. Only the first `tested` intervals
     # are tested; the others are padding at t = 1 (their count is checked in `_failures`).
-    slots = events.shape[1]
-    tested = _interval_budget(options.max_camera_intervals, _fixed_slots(scene, slots), slots)
+    fixed = _fixed_slots(scene, events, ranges)
+    tested = _interval_budget(options.max_camera_intervals, fixed, events.shape[1])
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]), scene)
@@ -355,8 +356,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
     # Every camera repeats the corners among its events (zero-length intervals); the
     # closed-form events of conics are kept whole (`_fixed_slots`).
-    slots = partitions.events.shape[-1]
-    fixed = pieces[0].shape[1] + len(partitions.events) * _fixed_slots(scene, slots)
+    per_camera = _fixed_slots(scene, partitions.events, partitions.ranges)
+    fixed = pieces[0].shape[1] + len(partitions.events) * per_camera
     budget = _interval_budget(options.max_intervals, fixed, union.shape[1])
     used = jnp.sum(union < 1.0, axis=1)
     start, end = _intervals(union[:, :budget])
@@ -430,8 +431,8 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
                 "max_range_crossings",
             )
         )
-    slots = partitions.events.shape[-1]
-    tested = _interval_budget(options.max_camera_intervals, _fixed_slots(scene, slots), slots)
+    fixed = _fixed_slots(scene, partitions.events, partitions.ranges)
+    tested = _interval_budget(options.max_camera_intervals, fixed, partitions.events.shape[-1])
     budgets.append(
         (
             jnp.sum(partitions.events < 1.0, axis=-1),

@@ -913,6 +913,31 @@ def test_conics_q_and_gradient_match_the_reference_and_finite_differences():
     assert rel(g_scene, fd_scene) < 1e-6 and np.linalg.norm(g_scene) > 0.1
 
 
+def test_conics_seen_through_wedges_and_ranges_match_the_reference():
+    """Cameras with a view wedge and a range on the scene of conics: the wedges' edges
+    join the closed-form shadow rays (after the tangency points of every conic), the
+    range crossings are root solves, and the 8 shadow slots of a conic are packed into
+    max_shadows = 7 (the room is hit 7 times). Q against the NumPy reference (1e-9), and
+    in float32 (1e-4)."""
+    cams = np.array(CONIC_CAMERAS[:2])
+    heading = np.arctan2(-cams[:, 1], -cams[:, 0]) + np.array([0.15, -0.2])
+    fov, reach = np.array([0.45, 0.6]), np.array([5.5, 6.5])
+    camera = ocp.Camera(*(jnp.asarray(a) for a in (cams, heading, fov, reach)))
+    options = ocp.VisibilityOptions(max_shadows=7)
+    shadows = ocp.visible_intervals(CONICS, camera, options).shadows
+    assert shadows.t.shape == (2, 4, 7) and np.asarray(shadows.count).max() == 7
+    poses = [{"heading": heading[c], "half_fov": fov[c], "range": reach[c]} for c in range(2)]
+    spec = H.to_reference(CONICS)
+    ref = reference_visibility(spec, cams, "foreshortened", poses=poses, observed=[1, 1, 1, 0])
+    fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, options))
+    assert rel(fn(CONICS, camera), ref) < 1e-9
+    to32 = functools.partial(jax.tree.map, lambda a: jnp.asarray(a, jnp.float32))
+    value32 = fn(to32(CONICS), to32(camera))
+    assert value32.dtype == jnp.float32 and rel(value32, ref) < 1e-4
+    # the wedges and ranges matter: less is seen than without them
+    assert ref < reference_visibility(spec, cams, "foreshortened", observed=[1, 1, 1, 0]) - 1.0
+
+
 @pytest.mark.parametrize("j", range(len(KIDNEY_NEAR_DOUBLE)))
 def test_near_double_tangency_roots_are_both_found(j):
     """Both roots of the pair, also the one hidden behind the curve (harmless to Q here,
@@ -1168,8 +1193,8 @@ def test_bad_objective_raises():
 
 
 def test_exceeded_shadow_budget_raises():
-    """Small circle in front of a big one: its two silhouette rays cross the big circle
-    twice each beyond the small one, 4 shadow times > max_shadows = 1."""
+    """Small circle in front of a big one: its two silhouette rays meet the big circle
+    beyond the small one, 2 shadow times (first crossings) > max_shadows = 1."""
     C, cb, R_, cs, r = TWO_CIRCLE_CASES[0]
     fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, ocp.VisibilityOptions(max_shadows=1)))
     with pytest.raises(Exception, match=r"more shadow times on one curve than the budget of 1.*max_shadows="):
