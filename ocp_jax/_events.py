@@ -12,7 +12,8 @@ the visibility of a curve can change.
   with a range R, the range circle's crossings are roots of |x(t) - C|^2 - R^2.
 
 Each root carries the implicit-function derivative (see `_roots.py`); for tangency and
-shadow times with respect to the camera it equals Eqs. 5.28/5.32 and 5.17/5.20.
+shadow times with respect to the camera it equals Eqs. 5.28/5.32 and 5.17/5.20. In a
+scene of conics only, `_conics.py` gives the tangency and shadow times in closed form.
 """
 
 import functools
