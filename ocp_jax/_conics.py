@@ -18,17 +18,14 @@ scene is a conic: a few kernels instead of two loops, with exact derivatives by 
 of the closed forms (the same as the implicit-function rules of `_roots.py`).
 """
 
-import math
-
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._curves import _TWO_PI
 from ._events import RaySources, Roots
-from ._roots import first_true, safe_divisor
+from ._roots import first_true, quadratic_roots
 from ._vec import Vec, dot, sub
-
-_TWO_PI = 2.0 * math.pi
 
 
 def _to_unit(frames, v: Vec, shift: bool) -> Vec:
@@ -94,15 +91,13 @@ def conic_shadow_times(
     ray = sub(sources.point, camera).map(lambda a: a[other])  # (m, l - 2)
     origin = _to_unit(frames, camera.map(lambda a: a[None, None]), shift=True)  # (m, 1)
     direction = _to_unit(frames, ray, shift=False)
-    # |origin + lambda direction|^2 = 1: a lambda^2 + 2 b lambda + c = 0.
+    # |origin + lambda direction|^2 = 1: a lambda^2 + b lambda + c = 0.
     a = dot(direction, direction)
-    b = dot(origin, direction)
+    b = 2.0 * dot(origin, direction)
     c = dot(origin, origin) - 1.0
-    disc = b * b - a * c
+    disc = b * b - 4.0 * a * c
     real = disc > 0.0
-    root = jnp.sqrt(jnp.where(real, disc, 1.0))
-    q = -(b + jnp.where(b >= 0.0, root, -root))  # the roots q / a and c / q, stably
-    roots = q / a, c / safe_divisor(q)
+    roots = quadratic_roots(a, b, c, jnp.where(real, disc, 1.0))
     # The first crossing in front: the nearer root outside the conic (c > 0), the
     # positive one inside it (c < 0, a room).
     lam = jnp.where(c > 0.0, jnp.minimum(*roots), jnp.maximum(*roots))

@@ -56,6 +56,14 @@ def safe_divisor(x):
     return jnp.where(x == 0, 1.0, x)
 
 
+def quadratic_roots(a, b, c, disc):
+    """The roots of a x^2 + b x + c = 0 from its discriminant `disc` (b^2 - 4 a c, made
+    non-negative by the caller), as the pair c / q, q / a with q = -(b + sign(b)
+    sqrt(disc)) / 2, which loses no digits to cancellation (divisions by 0 give 0)."""
+    q = -0.5 * (b + jnp.where(b >= 0, 1.0, -1.0) * jnp.sqrt(disc))
+    return c / safe_divisor(q), q / safe_divisor(a)
+
+
 def _hermite_coefficients(f0, f1, d0, d1, h):
     """p(s) = ((a3 s + a2) s + a1) s + f0 on s in [0, 1]: the cubic with p(0) = f0,
     p(1) = f1, p'(0) = h d0, p'(1) = h d1."""
@@ -72,10 +80,7 @@ def hermite_extremum(f0, f1, d0, d1, h):
     a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
     # p'(s) = A s^2 + B s + c has exactly one root in (0, 1) when d0 d1 < 0.
     A, B, c = 3.0 * a3, 2.0 * a2, a1
-    disc = jnp.maximum(B * B - 4.0 * A * c, 0.0)
-    q = -0.5 * (B + jnp.where(B >= 0, 1.0, -1.0) * jnp.sqrt(disc))
-    r_small = c / safe_divisor(q)
-    r_large = q / safe_divisor(A)
+    r_small, r_large = quadratic_roots(A, B, c, jnp.maximum(B * B - 4.0 * A * c, 0.0))
     s = jnp.where((r_small >= 0) & (r_small <= 1), r_small, r_large)
     turning = d0 * d1 < 0
     s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)

@@ -208,8 +208,9 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
     frozen = jax.lax.stop_gradient(pose)  # the visibility decisions carry no derivative
-    if scene.conics_only:  # events in closed form
-        tangents = conic_tangency_times(scene.conic_frames(), camera)
+    conics = scene.conic_frames() if scene.conics_only else None  # closed-form events
+    if conics is not None:
+        tangents = conic_tangency_times(conics, camera)
     else:
         tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
     sources = tangency_points(scene, tangents)
@@ -222,8 +223,8 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
         sources = sources._replace(valid=sources.valid & in_view(frozen, sources.point))
         edges = pose.heading + jnp.stack([pose.half_fov, -pose.half_fov])
         sources = join_sources(sources, wedge_edges(camera, Vec(jnp.cos(edges), jnp.sin(edges))))
-    if scene.conics_only:
-        shadows = conic_shadow_times(scene.conic_frames(), camera, sources, options.max_shadows)
+    if conics is not None:
+        shadows = conic_shadow_times(conics, camera, sources, options.max_shadows)
     else:
         shadows = shadow_times(scene, camera, samples, sources, options.max_shadows, iters)
     pieces.append(shadows.t)
