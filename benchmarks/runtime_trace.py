@@ -16,6 +16,7 @@ its columns compare programs, not absolute speeds.
 
 import argparse
 import glob
+import itertools
 import statistics
 import tempfile
 
@@ -50,7 +51,7 @@ def trace(compiled, hlo_text: str, scene, cameras, calls: int = 20):
     events.sort()
     starts = sorted(starts) + [float("inf")]
     spans, busy = [], []
-    for begin, end in zip(starts[:-1], starts[1:]):
+    for begin, end in itertools.pairwise(starts):
         call = [e for e in events if begin <= e[0] < end]
         spans.append(max(e for _, e in call) - call[0][0])
         covered, (lo, hi) = 0, call[0]
