@@ -51,13 +51,18 @@ def split_kernels(hlo_text: str) -> int:
     return hlo_text.count('"outer_dimension_partitions":["')
 
 
-def launches(compiled, hlo_text: str, scene, cameras, calls: int = 20) -> float:
-    """Kernels launched per call: the profiler's events named after an instruction of
-    the compiled program (`hlo_text`; loops and conditionals, which launch their bodies,
-    excluded)."""
+def kernel_names(hlo_text: str) -> set[str]:
+    """The instructions of a compiled program (`hlo_text`) that run as kernels of their
+    own: loops and conditionals, which launch their bodies, excluded."""
     instructions = _INSTRUCTION.findall(hlo_text)
-    kernels = {name for name, op in instructions if op not in _NOT_KERNELS | _CONTAINERS}
-    jax.block_until_ready(compiled(scene, cameras))
+    return {name for name, op in instructions if op not in _NOT_KERNELS | _CONTAINERS}
+
+
+def profiled_events(compiled, scene, cameras, calls: int = 20, warm: int = 1):
+    """Every event (name, start ns, duration ns) of the JAX profiler's trace of `calls`
+    calls of `compiled`, after `warm` calls untraced."""
+    for _ in range(warm):
+        jax.block_until_ready(compiled(scene, cameras))
     with tempfile.TemporaryDirectory() as folder:
         with jax.profiler.trace(folder):
             for _ in range(calls):
@@ -65,7 +70,15 @@ def launches(compiled, hlo_text: str, scene, cameras, calls: int = 20) -> float:
         (path,) = glob.glob(f"{folder}/**/*.xplane.pb", recursive=True)
         profile = ProfileData.from_file(path)
     lines = (line for plane in profile.planes for line in plane.lines)
-    return sum(e.name in kernels for line in lines for e in line.events) / calls
+    return [(e.name, e.start_ns, e.duration_ns) for line in lines for e in line.events]
+
+
+def launches(compiled, hlo_text: str, scene, cameras, calls: int = 20) -> float:
+    """Kernels launched per call: the profiler's events named after a kernel of the
+    compiled program."""
+    kernels = kernel_names(hlo_text)
+    events = profiled_events(compiled, scene, cameras, calls)
+    return sum(name in kernels for name, _, _ in events) / calls
 
 
 def split(scene, cameras):

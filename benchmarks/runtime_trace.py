@@ -15,39 +15,25 @@ its columns compare programs, not absolute speeds.
 """
 
 import argparse
-import glob
 import itertools
 import statistics
-import tempfile
 
 import jax
 import numpy as np
-from compile_split import _CONTAINERS, _INSTRUCTION, _NOT_KERNELS
+from compile_split import kernel_names, profiled_events
 from compiler_options import alternating
 from evaluate import VALUE, cases, ocp, print_row
-from jax.profiler import ProfileData
 
 
 def trace(compiled, hlo_text: str, scene, cameras, calls: int = 20):
     """(launches, kernel us, span us, busy us) per call, from the profiler's events."""
-    instructions = _INSTRUCTION.findall(hlo_text)
-    kernels = {name for name, op in instructions if op not in _NOT_KERNELS | _CONTAINERS}
-    for _ in range(50):
-        jax.block_until_ready(compiled(scene, cameras))
-    with tempfile.TemporaryDirectory() as folder:
-        with jax.profiler.trace(folder):
-            for _ in range(calls):
-                jax.block_until_ready(compiled(scene, cameras))
-        (path,) = glob.glob(f"{folder}/**/*.xplane.pb", recursive=True)
-        profile = ProfileData.from_file(path)
+    kernels = kernel_names(hlo_text)
     events, starts = [], []
-    for plane in profile.planes:
-        for line in plane.lines:
-            for e in line.events:
-                if e.name in kernels:
-                    events.append((e.start_ns, e.start_ns + e.duration_ns))
-                elif e.name == "CommonPjRtLoadedExecutable::ExecuteHelperOnSingleDevice":
-                    starts.append(e.start_ns)
+    for name, start, duration in profiled_events(compiled, scene, cameras, calls, warm=50):
+        if name in kernels:
+            events.append((start, start + duration))
+        elif name == "CommonPjRtLoadedExecutable::ExecuteHelperOnSingleDevice":
+            starts.append(start)
     events.sort()
     starts = sorted(starts) + [float("inf")]
     spans, busy = [], []
