@@ -16,22 +16,32 @@ the order of points along a line, so both kinds of event have closed forms there
 They replace the grid brackets and Newton steps of `_events.py` where every curve of the
 scene is a conic: a few kernels instead of two loops, with exact derivatives by autodiff
 of the closed forms (the same as the implicit-function rules of `_roots.py`).
+
+The decisions have closed forms too, so that such a scene needs no grid of samples:
+
+- Occlusion (`_occlusion.py`): the open segment from C to a query point P crosses conic j
+  where |C' + lambda M_j (P - C)|^2 = 1 has a root lambda in (0, 1). A facing point is
+  never hidden by its own conic (strictly convex).
+- Camera checks: C is inside conic i where |C'| < 1; its distance to the conic is
+  ||C'| - 1| |C'| / |M^T C'| (the unit frame's distance over the map's stretch along the
+  normal), exact for circles and to first order in the distance for ellipses, which is
+  all the checks need (on a curve: 1e-8 of the scene; too close: 2% of the radius).
 """
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._curves import _TWO_PI
+from ._curves import _TWO_PI, UnitFrame
 from ._events import RaySources, Roots
 from ._roots import first_true, quadratic_roots
-from ._vec import Vec, dot, sub
+from ._vec import Vec, dot, norm, sub
 
 
-def _to_unit(frames, v: Vec, shift: bool) -> Vec:
+def _to_unit(frames: UnitFrame, v: Vec, shift: bool) -> Vec:
     """M_i (v_i - c_i) (or M_i v_i without `shift`) for every conic i, where the arrays of
     `v` have a leading axis of one row per conic (or of one row for all)."""
-    center, matrix = frames
+    center, matrix = frames.center, frames.to_unit
     ones = (1,) * (v.x.ndim - 1)
 
     def per_conic(a):  # (m,) -> (m, 1, ..., 1), against v's arrays
@@ -49,9 +59,7 @@ def _angle(point: Vec, valid) -> Array:
     return jnp.arctan2(jnp.where(valid, point.y, 0.0), jnp.where(valid, point.x, 1.0))
 
 
-def conic_tangency_times(
-    frames: tuple[Float[Array, "m 2"], Float[Array, "m 2 2"]], camera: Vec
-) -> Roots:
+def conic_tangency_times(frames: UnitFrame, camera: Vec) -> Roots:
     """The two tangency times of every conic seen from `camera` (none from inside)."""
     origin = _to_unit(frames, camera.map(lambda a: a[None]), shift=True)  # (m,)
     squared = dot(origin, origin)
@@ -63,12 +71,7 @@ def conic_tangency_times(
     return Roots(jnp.where(valid, t, 1.0), valid, jnp.where(outside, 2, 0))
 
 
-def conic_shadow_times(
-    frames: tuple[Float[Array, "m 2"], Float[Array, "m 2 2"]],
-    camera: Vec,
-    sources: RaySources,
-    budget: int,
-) -> Roots:
+def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budget: int) -> Roots:
     """Where the rays from `camera` through the ray sources meet every conic first, if
     beyond the source's depth: one slot per ray and conic, packed into `budget` slots per
     conic when there are more (the count of hits is returned, so that an overflow is
@@ -81,7 +84,7 @@ def conic_shadow_times(
     object itself on both sides of the crossing); a room's first crossing in front of a
     camera inside it is its only one.
     """
-    m = frames[0].shape[0]
+    m = frames.center.shape[0]
     lines = sources.depth.shape[0]
     assert lines - 2 * m in (0, 2), "sources: two tangency points per conic, wedge edges"
     # Static: for conic i, every source but its own two tangency points.
@@ -110,3 +113,68 @@ def conic_shadow_times(
         t = jnp.where(filled, jnp.take_along_axis(t, index, -1), 1.0)
         valid = filled
     return Roots(t, valid, count)
+
+
+def _singular_values(matrix: Float[Array, "m 2 2"]) -> tuple[Array, Array]:
+    """The largest and smallest singular values of 2 x 2 matrices, from their Frobenius
+    norms F and determinants D: s^2 = (F^2 +- sqrt(F^4 - 4 D^2)) / 2."""
+    frobenius = jnp.sum(matrix * matrix, axis=(-1, -2))
+    det = matrix[:, 0, 0] * matrix[:, 1, 1] - matrix[:, 0, 1] * matrix[:, 1, 0]
+    spread = jnp.sqrt(jnp.maximum(frobenius * frobenius - 4.0 * det * det, 0.0))
+    return jnp.sqrt(0.5 * (frobenius + spread)), jnp.sqrt(
+        0.5 * jnp.maximum(frobenius - spread, 0.0)
+    )
+
+
+def conic_orientation(frames: UnitFrame) -> Float[Array, " m"]:
+    """+1 for counter-clockwise conics, -1 for clockwise: the sign of det M^-1."""
+    inverse = frames.from_unit
+    return jnp.sign(inverse[:, 0, 0] * inverse[:, 1, 1] - inverse[:, 0, 1] * inverse[:, 1, 0])
+
+
+def conic_extent(frames: UnitFrame) -> tuple[Array, Float[Array, " m"]]:
+    """max |x| + max |y| over the scene (its size) and each conic's radius about its
+    centre (the largest semi-axis), as `_check_cameras` reads them off the samples."""
+    half_widths = jnp.sqrt(jnp.sum(frames.from_unit**2, axis=-1))  # (m, 2): rows of M^-1
+    size = jnp.sum(jnp.max(jnp.abs(frames.center) + half_widths, axis=0))
+    return size, _singular_values(frames.from_unit)[0]
+
+
+def conic_distances(frames: UnitFrame, sides: np.ndarray, cameras: Vec) -> tuple[Array, Array]:
+    """(distance, outward) of every camera to every conic, arrays (m, k), as
+    `_closest_points` gives them: the distance (exact for circles, to first order for
+    ellipses, see the module docstring) and a value that is negative where the camera is
+    on the side of conic i that is not free space (inside an object, outside the room:
+    `sides` = +1 for objects, -1 for the room)."""
+    matrix = frames.to_unit
+    unit = _to_unit(frames, cameras.map(lambda a: a[None]), shift=True)  # (m, k) C'
+    stretch = Vec(  # M^T C'
+        matrix[:, 0, 0, None] * unit.x + matrix[:, 1, 0, None] * unit.y,
+        matrix[:, 0, 1, None] * unit.x + matrix[:, 1, 1, None] * unit.y,
+    )
+    radial = norm(unit)
+    # At the centre (a camera in the middle of a room) |C'| / |M^T C'| has no limit:
+    # take the smallest semi-axis (the distance is then at least that).
+    smallest = _singular_values(frames.from_unit)[1][:, None]
+    at_centre = radial == 0.0
+    ratio = jnp.where(at_centre, smallest, radial / jnp.where(at_centre, 1.0, norm(stretch)))
+    outward = jnp.asarray(sides, radial.dtype)[:, None] * (radial - 1.0)
+    return jnp.abs(radial - 1.0) * ratio, outward
+
+
+def conic_occluded(frames: UnitFrame, camera: Vec, query: Vec) -> Array:
+    """Whether another conic crosses the open segment from `camera` to each query point
+    (arrays (m, q), point q on conic i): a root lambda in (0, 1) of |C' + lambda M_j (P -
+    C)|^2 = 1 for some conic j != i."""
+    m = frames.center.shape[0]
+    origin = _to_unit(frames, camera.map(lambda a: a[None, None, None]), shift=True)
+    direction = _to_unit(frames, sub(query, camera).map(lambda a: a[None]), shift=False)
+    a = dot(direction, direction)  # (m_j, m_i, q)
+    b = 2.0 * dot(origin, direction)
+    c = dot(origin, origin) - 1.0
+    disc = b * b - 4.0 * a * c
+    real = disc > 0.0
+    near, far = quadratic_roots(a, b, c, jnp.where(real, disc, 1.0))
+    between = ((near > 0.0) & (near < 1.0)) | ((far > 0.0) & (far < 1.0))
+    crossing = real & between & ~np.eye(m, dtype=bool)[:, :, None]
+    return jnp.any(crossing, axis=0)

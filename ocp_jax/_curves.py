@@ -9,6 +9,7 @@ them is differentiable with respect to the curve's parameters too.
 
 import abc
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -332,14 +333,23 @@ class BSplineCurve(AbstractCurve):
         return 4 * self.control_points.shape[0]  # four per knot span, aligned with knots
 
 
+class UnitFrame(NamedTuple):
+    """The affine map p -> M (p - c) that takes a conic onto the unit circle, and back:
+    M (x(t) - c) = (cos 2 pi t, sin 2 pi t), x(t) = c + M^-1 (cos 2 pi t, sin 2 pi t)."""
+
+    center: Float[Array, "*m 2"]
+    to_unit: Float[Array, "*m 2 2"]  # M
+    from_unit: Float[Array, "*m 2 2"]  # M^-1 (its singular values: the semi-axes)
+
+
 class AbstractConic(AbstractCurve):
     """A curve that an affine map takes onto the unit circle, x(t) to (cos 2 pi t,
     sin 2 pi t): circles and ellipses. Tangency and line crossings are preserved by
     affine maps, so their events have closed forms (`_conics.py`)."""
 
     @abc.abstractmethod
-    def unit_frame(self) -> tuple[Float[Array, "2"], Float[Array, "2 2"]]:
-        """(c, M) with M (x(t) - c) = (cos 2 pi t, sin 2 pi t)."""
+    def unit_frame(self) -> UnitFrame:
+        """The map onto the unit circle and its inverse."""
 
 
 class Circle(AbstractConic):
@@ -373,7 +383,8 @@ class Circle(AbstractConic):
         )
 
     def unit_frame(self):
-        return self.center, jnp.eye(2, dtype=self.center.dtype) / self.radius
+        identity = jnp.eye(2, dtype=self.center.dtype)
+        return UnitFrame(self.center, identity / self.radius, identity * self.radius)
 
 
 class Ellipse(AbstractConic):
@@ -420,10 +431,10 @@ class Ellipse(AbstractConic):
         )
 
     def unit_frame(self):
-        # M = diag(1/a, 1/b) R(-angle)
+        # M = diag(1/a, 1/b) R(-angle), M^-1 = R(angle) diag(a, b)
         cos, sin = jnp.cos(self.angle), jnp.sin(self.angle)
         rows = jnp.stack([jnp.stack([cos, sin]), jnp.stack([-sin, cos])])
-        return self.center, rows / self.semi_axes[:, None]
+        return UnitFrame(self.center, rows / self.semi_axes[:, None], rows.T * self.semi_axes[None])
 
     def panels(self):
         return 8

@@ -68,6 +68,12 @@ def _crosses_segment(g, dg, depth, reach, h):
     return (crossing & inside) | (pair & (d_pair > 0) & (d_pair < reach))
 
 
+def facing(camera: Vec, sense: Float[Array, " m"], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "m q"]:
+    """Whether the free side of each query point (arrays (m, q) on every curve i) faces
+    the camera; a point facing away is hidden by its own object."""
+    return sense[:, None] * cross(dx_mid, sub(x_mid, camera)) > 0
+
+
 def visible_points(
     camera: Vec,
     samples: Samples,
@@ -82,7 +88,6 @@ def visible_points(
     h = jnp.diff(samples.t)
     d = sub(x_mid, camera)  # (m, q)
     reach = dot(d, d)
-    facing = sense[:, None] * cross(dx_mid, d) > 0
     sight = sub(samples.x, camera)
 
     # Every other curve j (static indices, none for a single curve): arrays
@@ -112,4 +117,4 @@ def visible_points(
 
     dr = samples.at_nodes(slopes_at)
     own = _crosses_segment(r, dr, dot(dq, own_sight), reach[:, :, None], h)
-    return facing & ~blocked & ~jnp.any(own, axis=-1)
+    return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~jnp.any(own, axis=-1)

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._curves import AbstractConic, AbstractCurve
+from ._curves import AbstractConic, AbstractCurve, UnitFrame
 from ._vec import Vec
 
 __all__ = ["Scene"]
@@ -132,7 +132,7 @@ class Scene(eqx.Module):
         """Whether every curve is a conic (then the events have closed forms, `_conics.py`)."""
         return all(isinstance(c, AbstractConic) for c in self.curves)
 
-    def conic_frames(self) -> tuple[Float[Array, "m 2"], Float[Array, "m 2 2"]]:
+    def conic_frames(self) -> UnitFrame:
         """Every curve's `AbstractConic.unit_frame`, stacked (a scene of conics only)."""
         return self._map(lambda c: c.unit_frame())
 

@@ -26,7 +26,14 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ._camera import Camera
-from ._conics import conic_shadow_times, conic_tangency_times
+from ._conics import (
+    conic_distances,
+    conic_extent,
+    conic_occluded,
+    conic_orientation,
+    conic_shadow_times,
+    conic_tangency_times,
+)
 from ._events import (
     Roots,
     Samples,
@@ -50,7 +57,7 @@ from ._objectives import (
     camera_groups,
     group_members,
 )
-from ._occlusion import in_view, orientation, visible_points
+from ._occlusion import facing, in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
 from ._roots import safe_divisor
 from ._scene import Scene
@@ -173,7 +180,11 @@ def _poses(scene: Scene, cameras) -> Camera:
 def _sense(scene: Scene, samples: Samples) -> Float[Array, " m"]:
     """+1 where the free space lies to the left of x' (counter-clockwise objects,
     clockwise rooms), -1 where it lies to the right."""
-    return orientation(samples) * jnp.asarray(scene.sides(), samples.t.dtype)
+    if scene.conics_only:  # (closed forms: a scene of conics needs no samples, `_conics.py`)
+        turning = conic_orientation(jax.lax.stop_gradient(scene.conic_frames()))
+    else:
+        turning = orientation(samples)
+    return turning * jnp.asarray(scene.sides(), samples.t.dtype)
 
 
 def _as_input(cameras):
@@ -240,7 +251,12 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
     x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]), scene)
-    visible = visible_points(Vec.of(frozen.position), samples, sense, t_mid, x_mid, dx_mid)
+    seen_from = Vec.of(frozen.position)
+    if conics is not None:
+        blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
+        visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
+    else:
+        visible = visible_points(seen_from, samples, sense, t_mid, x_mid, dx_mid)
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
     return CameraPartition(events, visible, tangents, shadows, ranges)
@@ -307,11 +323,16 @@ def _check_cameras(scene, cameras: Vec, samples: Samples, sense, quadrature: int
     `too_close`: closer to a curve than (2.5 / quadrature)^2 of the curve's radius, where
     a camera-dependent q is so nearly singular that `quadrature` nodes per interval no
     longer reach ~1e-7 (measured on circles: 2e-8 at 5% of the radius, 5e-6 at 1%)."""
-    distance, outward = _closest_points(scene, cameras, samples, sense)
-    size = jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y))
+    if scene.conics_only:  # closed forms (`_conics.py`)
+        frames = scene.conic_frames()
+        distance, outward = conic_distances(frames, scene.sides(), cameras)
+        size, radius = conic_extent(frames)
+    else:
+        distance, outward = _closest_points(scene, cameras, samples, sense)
+        size = jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y))
+        _, radius = bounding_discs(samples)
     on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=0)
     inside = jnp.any(outward < 0, axis=0) & ~on_curve
-    _, radius = bounding_discs(samples)
     near = distance < (2.5 / quadrature) ** 2 * radius[:, None]
     too_close = jnp.any(near & scene.observed()[:, None], axis=0) & ~on_curve
     finite = jnp.isfinite(cameras.x) & jnp.isfinite(cameras.y)
@@ -404,11 +425,18 @@ def _input_failures(scene, poses: Camera, samples, sense, quadrature: int, camer
             f"{quadrature} quadrature nodes: move it away or pass "
             "options=ocp.VisibilityOptions(quadrature=...) with more nodes.",
         ),
-        (
-            ~jnp.all(jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y)),
-            "ocp_jax: the scene contains NaN or inf control points.",
-        ),
+        (~_finite_scene(scene, samples), "ocp_jax: the scene contains NaN or inf control points."),
     ]
+
+
+def _finite_scene(scene, samples) -> Array:
+    """Whether the scene's samples are finite (for a scene of conics, which needs no
+    samples, its parameters)."""
+    if scene.conics_only:
+        arrays = jax.tree.leaves(scene)
+    else:
+        arrays = [samples.x.x, samples.x.y]
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in arrays]))
 
 
 def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):

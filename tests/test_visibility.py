@@ -24,7 +24,7 @@ from scipy import integrate
 import helpers as H
 import ocp_jax as ocp
 from helpers import FS, VL
-from ocp_jax import _conics, _events, _roots
+from ocp_jax import _conics, _events, _occlusion, _roots, _visibility
 from ocp_jax._materialize import materialize
 from ocp_jax._vec import Vec
 
@@ -936,6 +936,85 @@ def test_conics_seen_through_wedges_and_ranges_match_the_reference():
     assert value32.dtype == jnp.float32 and rel(value32, ref) < 1e-4
     # the wedges and ranges matter: less is seen than without them
     assert ref < reference_visibility(spec, cams, "foreshortened", observed=[1, 1, 1, 0]) - 1.0
+
+
+@functools.cache
+def conic_decisions():
+    """Jitted, on a scene of conics: the camera checks' (distance, outward) and the
+    occlusion test of query points, in closed form and from the grid of samples (what
+    every other scene uses), with the size, radii and orientation both ways."""
+
+    def fn(scene, cameras, camera, t):
+        frozen = jax.lax.stop_gradient(scene)
+        samples = _events.sample(frozen, grid_cells(scene))
+        sense = _occlusion.orientation(samples) * scene.sides()
+        cams, cam = Vec.of(cameras), Vec.of(camera)
+        frames = scene.conic_frames()
+        x, dx, _ = scene.components(t)
+        grid = (
+            _visibility._closest_points(frozen, cams, samples, sense),
+            (jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y)), sense),
+            _occlusion.visible_points(cam, samples, sense, t, x, dx),
+        )
+        closed = (
+            _conics.conic_distances(frames, scene.sides(), cams),
+            (_conics.conic_extent(frames)[0], _conics.conic_orientation(frames) * scene.sides()),
+            _occlusion.facing(cam, sense, x, dx) & ~_conics.conic_occluded(frames, cam, x),
+        )
+        return closed, grid, _conics.conic_extent(frames)[1]
+
+    return jax.jit(fn)
+
+
+def test_conic_camera_checks_in_closed_form_match_the_grid():
+    """The camera checks of a scene of conics in closed form (no samples) against the
+    grid + Newton closest points: the same sides of every conic, distances equal on
+    circles (1e-12) and to first order on the ellipse (error below d^2 / b, b its smaller
+    semi-axis), at cameras far, near (1% and 1e-9 of a radius) and inside; the scene's
+    size and the radii (largest semi-axes) against dense samples."""
+    circle, ellipse = CONICS.curves[0], CONICS.curves[1]
+    near = []
+    for curve, t in ((circle, 0.3), (ellipse, 0.1), (ellipse, 0.55)):
+        x, dx = (np.asarray(a) for a in curve.derivatives(t)[:2])
+        outward = np.array([dx[1], -dx[0]]) / np.linalg.norm(dx)  # counter-clockwise
+        near += [x + s * outward for s in (1e-2, 1e-9, -1e-2)]
+    cameras = np.array(CONIC_CAMERAS + near + [(2.5, 1.3), (5.9, 5.9), (0.4, 0.6)])
+    (closed, (size, sense), _), (grid, (grid_size, grid_sense), _), radius = jax.tree.map(
+        np.asarray, conic_decisions()(CONICS, jnp.asarray(cameras), cameras[0], jnp.zeros((4, 1)))
+    )
+    (distance, outward), (true_distance, true_outward) = closed, grid
+    np.testing.assert_array_equal(np.sign(outward), np.sign(true_outward))
+    assert np.sum(outward < 0) == 6  # 3 near points, 2 centres inside objects, 1 out of the room
+    circles = [0, 2, 3]
+    np.testing.assert_allclose(distance[circles], true_distance[circles], rtol=1e-12, atol=1e-15)
+    b = 0.3  # the ellipse's smaller semi-axis
+    assert np.all(np.abs(distance[1] - true_distance[1]) <= true_distance[1] ** 2 / b + 1e-15)
+    assert np.abs(distance[1] - true_distance[1]).max() > 1e-6  # (first order, not exact)
+    np.testing.assert_array_equal(sense, grid_sense)
+    dense = np.concatenate([np.asarray(c(np.linspace(0, 1, 20001))) for c in CONICS.curves])
+    assert abs(size - (np.abs(dense[:, 0]).max() + np.abs(dense[:, 1]).max())) < 1e-8
+    assert size >= grid_size
+    np.testing.assert_allclose(radius, [1.0, 0.6, 0.5, 6.0], rtol=1e-15)
+
+
+@pytest.mark.parametrize("ci", range(len(CONIC_CAMERAS)))
+def test_conic_occlusion_in_closed_form_matches_the_grid(ci):
+    """Which of 400 points on every conic of CONICS a camera sees: the closed-form
+    segment crossings (with the facing test) against the grid's occlusion test, equal
+    wherever a point is farther than 1e-6 from every event of the camera."""
+    camera = np.asarray(CONIC_CAMERAS[ci])
+    t = np.random.default_rng(ci).uniform(0, 1, (4, 400))
+    (_, _, closed), (_, _, grid), _ = jax.tree.map(
+        np.asarray, conic_decisions()(CONICS, jnp.asarray([camera]), camera, jnp.asarray(t))
+    )
+    (tangents, shadows), (valid, shadow_valid, _) = jax.tree.map(
+        np.asarray, _conic_events(ravel_pytree(CONICS)[0], jnp.asarray(camera), True)
+    )
+    assert 0.2 < closed.mean() < 0.8
+    for i in range(4):
+        events = np.concatenate([tangents[i][valid[i]], shadows[i][shadow_valid[i]]])
+        clear = np.abs(t[i][:, None] - events[None]).min(1, initial=1.0) > 1e-6
+        np.testing.assert_array_equal(closed[i][clear], grid[i][clear])
 
 
 @pytest.mark.parametrize("j", range(len(KIDNEY_NEAR_DOUBLE)))
