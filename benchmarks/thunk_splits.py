@@ -26,20 +26,20 @@ import subprocess
 import sys
 
 _LOGGING = {"TF_CPP_MIN_LOG_LEVEL": "0", "TF_CPP_VMODULE": "thunk_executor=6"}
-_THUNK = re.compile(r"thunk #(\d+): op_name=(\S+), kind=\w+, dependencies=\[(.*?)\]")
+_THUNK = re.compile(r"thunk #(\d+): op_name=(\S+), kind=[\w-]+, dependencies=\[(.*?)\]")
 _MARK = "thunk_splits.py row: "
 SPLIT_THRESHOLD = 8  # ThunkExecutor: the ready queue is split when longer than this
 
 
 def replay(graph: list[tuple[str, list[str]]]) -> tuple[int, int, int]:
     """(sources, most ready at once, split points) of one execution graph, a list of
-    (thunk, thunks it depends on) in the program's order, run from a FIFO queue."""
-    index = {name: i for i, (name, _) in enumerate(graph)}
-    waiting = [len(deps) for _, deps in graph]
-    unlocks = [[] for _ in graph]
-    for i, (_, deps) in enumerate(graph):
-        for d in deps:
-            unlocks[index[d]].append(i)
+    (thunk name, names of the thunks it depends on) in the program's order, run from a
+    FIFO queue."""
+    latest, waiting, unlocks = {}, [len(deps) for _, deps in graph], [[] for _ in graph]
+    for i, (name, deps) in enumerate(graph):
+        for d in deps:  # (a name may recur: a dependency is its latest thunk before i)
+            unlocks[latest[d]].append(i)
+        latest[name] = i
     ready = collections.deque(i for i, n in enumerate(waiting) if n == 0)
     sources, most, splits = len(ready), len(ready), 0
     while ready:
