@@ -433,10 +433,8 @@ def _finite_scene(scene, samples) -> Array:
     """Whether the scene's samples are finite (for a scene of conics, which needs no
     samples, its parameters)."""
     if scene.conics_only:
-        arrays = jax.tree.leaves(scene)
-    else:
-        arrays = [samples.x.x, samples.x.y]
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in arrays]))
+        return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(scene)]))
+    return jnp.all(jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y))
 
 
 def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):
