@@ -24,8 +24,10 @@ The decisions have closed forms too, so that such a scene needs no grid of sampl
   never hidden by its own conic (strictly convex).
 - Camera checks: C is inside conic i where |C'| < 1; its distance to the conic is
   ||C'| - 1| |C'| / |M^T C'| (the unit frame's distance over the map's stretch along the
-  normal), exact for circles and to first order in the distance for ellipses, which is
-  all the checks need (on a curve: 1e-8 of the scene; too close: 2% of the radius).
+  normal), exact for circles and to first order in the distance for ellipses (the
+  thresholds are 1e-8 of the scene for on a curve, 2% of the largest semi-axis for too
+  close; near the tips of an eccentric ellipse the estimate is low, so too close errs
+  towards raising).
 """
 
 import jax.numpy as jnp
@@ -57,6 +59,19 @@ def _angle(point: Vec, valid) -> Array:
     """The polar angle of `point` where `valid`, 0 elsewhere (with a finite derivative:
     arctan2 has none at the origin)."""
     return jnp.arctan2(jnp.where(valid, point.y, 0.0), jnp.where(valid, point.x, 1.0))
+
+
+def _unit_circle_crossings(origin: Vec, direction: Vec):
+    """Where the line origin + lambda direction meets the unit circle: the roots of
+    a lambda^2 + b lambda + c = 0 with a = |direction|^2, b = 2 origin . direction and
+    c = |origin|^2 - 1 (< 0 inside the circle). Returns (real, c, roots); the roots are
+    finite padding where they are not real."""
+    a = dot(direction, direction)
+    b = 2.0 * dot(origin, direction)
+    c = dot(origin, origin) - 1.0
+    disc = b * b - 4.0 * a * c
+    real = disc > 0.0
+    return real, c, quadratic_roots(a, b, c, jnp.where(real, disc, 1.0))
 
 
 def conic_tangency_times(frames: UnitFrame, camera: Vec) -> Roots:
@@ -94,13 +109,7 @@ def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budg
     ray = sub(sources.point, camera).map(lambda a: a[other])  # (m, l - 2)
     origin = _to_unit(frames, camera.map(lambda a: a[None, None]), shift=True)  # (m, 1)
     direction = _to_unit(frames, ray, shift=False)
-    # |origin + lambda direction|^2 = 1: a lambda^2 + b lambda + c = 0.
-    a = dot(direction, direction)
-    b = 2.0 * dot(origin, direction)
-    c = dot(origin, origin) - 1.0
-    disc = b * b - 4.0 * a * c
-    real = disc > 0.0
-    roots = quadratic_roots(a, b, c, jnp.where(real, disc, 1.0))
+    real, c, roots = _unit_circle_crossings(origin, direction)
     # The first crossing in front: the nearer root outside the conic (c > 0), the
     # positive one inside it (c < 0, a room).
     lam = jnp.where(c > 0.0, jnp.minimum(*roots), jnp.maximum(*roots))
@@ -115,37 +124,43 @@ def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budg
     return Roots(t, valid, count)
 
 
+def _det(matrix: Float[Array, "m 2 2"]) -> Float[Array, " m"]:
+    return matrix[:, 0, 0] * matrix[:, 1, 1] - matrix[:, 0, 1] * matrix[:, 1, 0]
+
+
 def _singular_values(matrix: Float[Array, "m 2 2"]) -> tuple[Array, Array]:
-    """The largest and smallest singular values of 2 x 2 matrices, from their Frobenius
-    norms F and determinants D: s^2 = (F^2 +- sqrt(F^4 - 4 D^2)) / 2."""
-    frobenius = jnp.sum(matrix * matrix, axis=(-1, -2))
-    det = matrix[:, 0, 0] * matrix[:, 1, 1] - matrix[:, 0, 1] * matrix[:, 1, 0]
-    spread = jnp.sqrt(jnp.maximum(frobenius * frobenius - 4.0 * det * det, 0.0))
-    return jnp.sqrt(0.5 * (frobenius + spread)), jnp.sqrt(
-        0.5 * jnp.maximum(frobenius - spread, 0.0)
-    )
+    """The largest and smallest singular values of 2 x 2 matrices, from the sum of
+    squares S of their entries and their determinants D: s_max^2 = (S + sqrt(S^2 - 4 D^2))
+    / 2, and s_min = |D| / s_max (no cancellation)."""
+    squares = jnp.sum(matrix * matrix, axis=(-1, -2))
+    det = _det(matrix)
+    largest = jnp.sqrt(0.5 * (squares + jnp.sqrt(jnp.maximum(squares**2 - 4.0 * det**2, 0.0))))
+    return largest, jnp.abs(det) / largest
 
 
 def conic_orientation(frames: UnitFrame) -> Float[Array, " m"]:
     """+1 for counter-clockwise conics, -1 for clockwise: the sign of det M^-1."""
-    inverse = frames.from_unit
-    return jnp.sign(inverse[:, 0, 0] * inverse[:, 1, 1] - inverse[:, 0, 1] * inverse[:, 1, 0])
+    return jnp.sign(_det(frames.from_unit))
 
 
 def conic_extent(frames: UnitFrame) -> tuple[Array, Float[Array, " m"]]:
     """max |x| + max |y| over the scene (its size) and each conic's radius about its
-    centre (the largest semi-axis), as `_check_cameras` reads them off the samples."""
+    centre, the largest semi-axis (the grid's checks take a bounding disc of the samples
+    instead, whose radius also holds the longest step between them: up to 1.4x larger)."""
     half_widths = jnp.sqrt(jnp.sum(frames.from_unit**2, axis=-1))  # (m, 2): rows of M^-1
     size = jnp.sum(jnp.max(jnp.abs(frames.center) + half_widths, axis=0))
     return size, _singular_values(frames.from_unit)[0]
 
 
-def conic_distances(frames: UnitFrame, sides: np.ndarray, cameras: Vec) -> tuple[Array, Array]:
-    """(distance, outward) of every camera to every conic, arrays (m, k), as
+def conic_distances(
+    frames: UnitFrame, sides: np.ndarray, cameras: Vec
+) -> tuple[Array, Array, Array]:
+    """(distance, outward, t) of every camera to every conic, arrays (m, k), as
     `_closest_points` gives them: the distance (exact for circles, to first order for
-    ellipses, see the module docstring) and a value that is negative where the camera is
+    ellipses, see the module docstring), a value that is negative where the camera is
     on the side of conic i that is not free space (inside an object, outside the room:
-    `sides` = +1 for objects, -1 for the room)."""
+    `sides` = +1 for objects, -1 for the room), and the parameter of the nearest point
+    (for an ellipse, of the point that the unit frame's radial projection gives)."""
     matrix = frames.to_unit
     unit = _to_unit(frames, cameras.map(lambda a: a[None]), shift=True)  # (m, k) C'
     stretch = Vec(  # M^T C'
@@ -154,12 +169,13 @@ def conic_distances(frames: UnitFrame, sides: np.ndarray, cameras: Vec) -> tuple
     )
     radial = norm(unit)
     # At the centre (a camera in the middle of a room) |C'| / |M^T C'| has no limit:
-    # take the smallest semi-axis (the distance is then at least that).
+    # the distance there is the smallest semi-axis.
     smallest = _singular_values(frames.from_unit)[1][:, None]
     at_centre = radial == 0.0
     ratio = jnp.where(at_centre, smallest, radial / jnp.where(at_centre, 1.0, norm(stretch)))
     outward = jnp.asarray(sides, radial.dtype)[:, None] * (radial - 1.0)
-    return jnp.abs(radial - 1.0) * ratio, outward
+    t = jnp.mod(_angle(unit, ~at_centre) / _TWO_PI, 1.0)
+    return jnp.abs(radial - 1.0) * ratio, outward, t
 
 
 def conic_occluded(frames: UnitFrame, camera: Vec, query: Vec) -> Array:
@@ -169,12 +185,7 @@ def conic_occluded(frames: UnitFrame, camera: Vec, query: Vec) -> Array:
     m = frames.center.shape[0]
     origin = _to_unit(frames, camera.map(lambda a: a[None, None, None]), shift=True)
     direction = _to_unit(frames, sub(query, camera).map(lambda a: a[None]), shift=False)
-    a = dot(direction, direction)  # (m_j, m_i, q)
-    b = 2.0 * dot(origin, direction)
-    c = dot(origin, origin) - 1.0
-    disc = b * b - 4.0 * a * c
-    real = disc > 0.0
-    near, far = quadratic_roots(a, b, c, jnp.where(real, disc, 1.0))
+    real, _, (near, far) = _unit_circle_crossings(origin, direction)  # (m_j, m_i, q)
     between = ((near > 0.0) & (near < 1.0)) | ((far > 0.0) & (far < 1.0))
     crossing = real & between & ~np.eye(m, dtype=bool)[:, :, None]
     return jnp.any(crossing, axis=0)

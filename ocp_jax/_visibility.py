@@ -141,6 +141,14 @@ class CameraPartition(NamedTuple):
     ranges: Roots | None  # crossings of the range circle
 
 
+class Nearest(NamedTuple):
+    """The point of every curve i nearest to every camera c, arrays (m, k)."""
+
+    distance: Float[Array, "m k"]
+    outward: Float[Array, "m k"]  # negative where the camera is not in free space
+    t: Float[Array, "m k"]
+
+
 class Events(NamedTuple):
     """Every camera's partition of every curve, and what the checks and Q need with it."""
 
@@ -151,6 +159,7 @@ class Events(NamedTuple):
     sense: Float[Array, " m"]
     cameras: Vec  # the positions
     poses: Camera
+    nearest: Nearest  # the point of every curve nearest to every camera (no derivative)
 
 
 def _poses(scene: Scene, cameras) -> Camera:
@@ -278,7 +287,7 @@ def _integrand(t, args):
 def _closest_points(scene, cameras: Vec, samples: Samples, sense):
     """For every curve i and camera c, the point x_i(t*) nearest to C_c: the nearest grid
     node, refined by safeguarded Newton on (x(t) - C) . x'(t) = 0 within its two cells.
-    Returns (distance, signed offset along the outward normal), arrays (m, k)."""
+    Returns (distance, signed offset along the outward normal, t*), arrays (m, k)."""
     camera = cameras.map(lambda a: a[None])  # (1, k)
     rel = sub(samples.x.map(lambda a: a[:, None]), camera.map(lambda a: a[..., None]))
     t0 = samples.t[jnp.argmin(dot(rel, rel), axis=2)]  # (m, k)
@@ -312,23 +321,31 @@ def _closest_points(scene, cameras: Vec, samples: Samples, sense):
         at_corner = norm(offset) <= distance
         distance = jnp.where(at_corner, norm(offset), distance)
         side = jnp.where(at_corner, corner_side, side)
-    return distance, side
+        t = jnp.where(at_corner, t0, t)
+    return distance, side, jnp.mod(t, 1.0)
 
 
-def _check_cameras(scene, cameras: Vec, samples: Samples, sense, quadrature: int):
+
+def _nearest_points(scene, cameras: Vec, samples: Samples, sense) -> Nearest:
+    """`_closest_points`, or its closed forms for a scene of conics (`_conics.py`)."""
+    if scene.conics_only:
+        return Nearest(*conic_distances(scene.conic_frames(), scene.sides(), cameras))
+    return Nearest(*_closest_points(scene, cameras, samples, sense))
+
+
+def _check_cameras(scene, cameras: Vec, nearest: Nearest, samples: Samples, quadrature: int):
     """Cameras must be finite, off every curve (closer than sqrt(eps) times the scene's
     size counts as on it) and outside every object (on the outward side of the nearest
     point of each curve).
 
     `too_close`: closer to a curve than (2.5 / quadrature)^2 of the curve's radius, where
     a camera-dependent q is so nearly singular that `quadrature` nodes per interval no
-    longer reach ~1e-7 (measured on circles: 2e-8 at 5% of the radius, 5e-6 at 1%)."""
+    longer reach ~1e-7 (measured on circles: 2e-8 at 5% of the radius, 5e-6 at 1%; Q's
+    intervals are cut at the nearest points, `_value`)."""
+    distance, outward = nearest.distance, nearest.outward
     if scene.conics_only:  # closed forms (`_conics.py`)
-        frames = scene.conic_frames()
-        distance, outward = conic_distances(frames, scene.sides(), cameras)
-        size, radius = conic_extent(frames)
+        size, radius = conic_extent(scene.conic_frames())
     else:
-        distance, outward = _closest_points(scene, cameras, samples, sense)
         size = jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y))
         _, radius = bounding_discs(samples)
     on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=0)
@@ -364,7 +381,8 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
             options.max_crossovers,
             options.newton_iterations,
         )
-    return Events(partitions, groups, crossovers, samples, sense, cameras, poses)
+    nearest = _nearest_points(*jax.lax.stop_gradient((scene, cameras)), samples, sense)
+    return Events(partitions, groups, crossovers, samples, sense, cameras, poses, nearest)
 
 
 def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
@@ -372,13 +390,19 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     and the intervals used per curve with their static budget."""
     partitions, crossovers = events.partitions, events.crossovers
     pieces = [scene.breakpoints(), *partitions.events]
+    # A camera-dependent q is nearly singular at the point nearest to a close camera
+    # (poles at about the relative distance from the real axis): cut there, so that the
+    # Gauss-Legendre nodes crowd towards it from both sides.
+    cut = not objective.is_constant
+    if cut:
+        pieces.append(events.nearest.t)
     if crossovers is not None:
         pieces.extend(crossovers.t)
     union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
     # Every camera repeats the corners among its events (zero-length intervals); the
-    # closed-form events of conics are kept whole (`_fixed_slots`).
-    per_camera = _fixed_slots(scene, partitions.events, partitions.ranges)
+    # closed-form events of conics and the nearest points are kept whole (`_fixed_slots`).
+    per_camera = _fixed_slots(scene, partitions.events, partitions.ranges) + cut
     fixed = pieces[0].shape[1] + len(partitions.events) * per_camera
     budget = _interval_budget(options.max_intervals, fixed, union.shape[1])
     used = jnp.sum(union < 1.0, axis=1)
@@ -398,15 +422,17 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     return value, (used, budget)
 
 
-def _input_failures(scene, poses: Camera, samples, sense, quadrature: int, camera_dependent):
+def _input_failures(scene, poses: Camera, nearest, samples, quadrature: int, camera_dependent):
     """The checks on the cameras and the scene: a list of (failure flag, message)
     (`camera_dependent`: whether q depends on the camera, see `_check_cameras`)."""
     pose_angles = [a for a in (poses.heading, poses.half_fov, poses.range) if a is not None]
     finite, inside, on_curve, too_close = _check_cameras(
-        *jax.lax.stop_gradient((scene, Vec.of(poses.position))), samples, sense, quadrature
+        jax.lax.stop_gradient(scene), Vec.of(poses.position), nearest, samples, quadrature
     )
     return [
         (~jnp.all(finite), "ocp_jax: a camera position is NaN or inf; pass finite coordinates."),
+        # (before the cameras' places: a NaN or inf curve puts them anywhere)
+        (~_finite_scene(scene, samples), "ocp_jax: the scene contains NaN or inf control points."),
         (
             ~jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in pose_angles])),
             "ocp_jax: a camera's heading, half_fov or range is NaN or inf (a range of inf: "
@@ -425,7 +451,6 @@ def _input_failures(scene, poses: Camera, samples, sense, quadrature: int, camer
             f"{quadrature} quadrature nodes: move it away or pass "
             "options=ocp.VisibilityOptions(quadrature=...) with more nodes.",
         ),
-        (~_finite_scene(scene, samples), "ocp_jax: the scene contains NaN or inf control points."),
     ]
 
 
@@ -443,7 +468,7 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
     intervals used and their budget, where Q was integrated)."""
     partitions, crossovers = events.partitions, events.crossovers
     failures = _input_failures(
-        scene, events.poses, events.samples, events.sense, options.quadrature, camera_dependent
+        scene, events.poses, events.nearest, events.samples, options.quadrature, camera_dependent
     )
     budgets = [
         (partitions.tangents.count, options.max_tangents, "tangency times", "max_tangents"),
@@ -503,7 +528,9 @@ def _value_and_failures(scene, cameras, objective, options):
         groups = camera_groups(objective, poses.shape[0])
         value = smoothed_value(scene, poses, objective, sense, groups, scene.observed())
         # (no too-close check: it concerns the exact engine's Gauss-Legendre nodes)
-        failures = _input_failures(scene, poses, samples, sense, options.quadrature, False)
+        positions = jax.lax.stop_gradient(Vec.of(poses.position))
+        nearest = _nearest_points(jax.lax.stop_gradient(scene), positions, samples, sense)
+        failures = _input_failures(scene, poses, nearest, samples, options.quadrature, False)
         failed = jnp.stack([f for f, _ in failures])
         return value, failed, [message for _, message in failures]
     events = _events(scene, cameras, objective, options)
@@ -561,7 +588,7 @@ def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | Non
     """Distance from each camera to each curve, negative inside the object: shape (k, m).
     Differentiable in the cameras (the gradient is the unit vector from the nearest point)."""
     samples = sample(jax.lax.stop_gradient(scene), grid or scene.grid_cells())
-    distance, outward = _closest_points(
+    distance, outward, _ = _closest_points(
         jax.lax.stop_gradient(scene), Vec.of(cameras), samples, _sense(scene, samples)
     )
     return jnp.where(outward >= 0, distance, -distance).T

@@ -124,6 +124,34 @@ def test_foreshortened_quadrature_for_a_close_camera():
         assert abs(float(q) / H.circle_foreshortened(1.0, d) - 1) <= tol
 
 
+def test_close_camera_anywhere_along_a_circle():
+    """A camera-dependent q is nearly singular at the point nearest to a close camera:
+    Q's intervals are cut there, so the calibration of the too-close threshold (~1e-7 at
+    (2.5 / 16)^2 of the radius) holds wherever that point lies, not only at a panel
+    breakpoint (at 1.3 r, t = 0.09, the uncut quadrature was off by 7e-6)."""
+    fn = jax.jit(lambda c: ocp.visibility(H.circle_scene(), c, FS))
+    for d, tol in ((1.03, 1e-7), (1.05, 3e-8), (1.1, 1e-9), (1.3, 1e-12)):
+        for t in (0.0, 0.02, 0.04, 0.09, 0.61):
+            cam = d * np.array([[math.cos(2 * math.pi * t), math.sin(2 * math.pi * t)]])
+            assert abs(float(fn(jnp.asarray(cam))) / H.circle_foreshortened(1.0, d) - 1) <= tol
+
+
+def test_close_camera_in_the_middle_of_a_panel_of_the_banana():
+    """The same for the banana's Bezier (nearest points by Newton from the grid): a camera
+    at 4% of the banana's radius from the middle of one of its 18 panels, against the
+    NumPy reference (1e-8)."""
+    banana = H.BANANA.curves[0]
+    dense = np.asarray(banana(np.linspace(0, 1, 4001)))
+    area = np.sum(dense[:-1, 0] * dense[1:, 1] - dense[:-1, 1] * dense[1:, 0])
+    radius = np.linalg.norm(dense - dense.mean(0), axis=1).max()
+    t = 6.5 / 18
+    x, dx = (np.asarray(a) for a in banana.derivatives(t)[:2])
+    outward = np.sign(area) * np.array([dx[1], -dx[0]]) / np.linalg.norm(dx)
+    cam = (x + 0.04 * radius * outward)[None]
+    q = jax.jit(lambda c: ocp.visibility(H.BANANA, c, FS))(jnp.asarray(cam))
+    ref = reference_visibility(H.to_reference(H.BANANA), cam, "foreshortened")
+    assert rel(q, ref) < 1e-8
+
 @pytest.mark.parametrize("case", range(len(CIRCLE_CASES)))
 def test_circle_gradients_closed_form(case):
     """dQ/d(camera, centre, radius) against the derivatives of the closed forms."""
@@ -969,8 +997,8 @@ def conic_decisions():
 def test_conic_camera_checks_in_closed_form_match_the_grid():
     """The camera checks of a scene of conics in closed form (no samples) against the
     grid + Newton closest points: the same sides of every conic, distances equal on
-    circles (1e-12) and to first order on the ellipse (error below d^2 / b, b its smaller
-    semi-axis), at cameras far, near (1% and 1e-9 of a radius) and inside; the scene's
+    circles (1e-12, and the same nearest points) and to first order on the ellipse (error
+    below d^2 / b, b its smaller semi-axis), at cameras far, near (1% and 1e-9 of a radius) and inside; the scene's
     size and the radii (largest semi-axes) against dense samples."""
     circle, ellipse = CONICS.curves[0], CONICS.curves[1]
     near = []
@@ -982,11 +1010,14 @@ def test_conic_camera_checks_in_closed_form_match_the_grid():
     (closed, (size, sense), _), (grid, (grid_size, grid_sense), _), radius = jax.tree.map(
         np.asarray, conic_decisions()(CONICS, jnp.asarray(cameras), cameras[0], jnp.zeros((4, 1)))
     )
-    (distance, outward), (true_distance, true_outward) = closed, grid
+    (distance, outward, t), (true_distance, true_outward, true_t) = closed, grid
     np.testing.assert_array_equal(np.sign(outward), np.sign(true_outward))
     assert np.sum(outward < 0) == 6  # 3 near points, 2 centres inside objects, 1 out of the room
     circles = [0, 2, 3]
     np.testing.assert_allclose(distance[circles], true_distance[circles], rtol=1e-12, atol=1e-15)
+    turn = t[circles] - true_t[circles]  # the nearest points on circles: the same
+    turn[2, -1] = 0.0  # (but for the camera at the room's centre: every point is nearest)
+    assert np.abs(turn - np.round(turn)).max() < 1e-9
     b = 0.3  # the ellipse's smaller semi-axis
     assert np.all(np.abs(distance[1] - true_distance[1]) <= true_distance[1] ** 2 / b + 1e-15)
     assert np.abs(distance[1] - true_distance[1]).max() > 1e-6  # (first order, not exact)
