@@ -389,7 +389,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     """Q by quadrature on the union of all events (with the curves' panel breakpoints),
     and the intervals used per curve with their static budget."""
     partitions, crossovers = events.partitions, events.crossovers
-    pieces = [scene.breakpoints(), *partitions.events]
+    pieces = [scene.breakpoints()]
     # A camera-dependent q is nearly singular at the point nearest to a close camera
     # (poles at about the relative distance from the real axis): cut there, so that the
     # Gauss-Legendre nodes crowd towards it from both sides.
@@ -398,6 +398,9 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         pieces.append(events.nearest.t)
     if crossovers is not None:
         pieces.extend(crossovers.t)
+    # (the cameras' events last: in a tie, the stable sort puts them after the other
+    # pieces, as the viewability lookup below needs)
+    pieces.extend(partitions.events)
     union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
     # Every camera repeats the corners among its events (zero-length intervals); the
@@ -408,12 +411,18 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     used = jnp.sum(union < 1.0, axis=1)
     start, end = _intervals(union[:, :budget])
 
-    # Viewability matrix: the camera's own interval that holds each union interval.
-    t_mid = jax.lax.stop_gradient(0.5 * (start + end))
+    # Viewability matrix: the camera's own interval that holds each union interval, found
+    # by the interval's end (the same floats as the camera's events): the last camera
+    # interval that starts before it. Where an event ties with another piece (a panel
+    # breakpoint, say), the zero-length interval between them comes before the event and
+    # is looked up on the event's near side: its end carries the event's derivative,
+    # which belongs to the interval after it (Leibniz). (Ties between two cameras'
+    # events are left to the sort's order.)
     own = jax.vmap(
-        jax.vmap(lambda ev, t: jnp.searchsorted(ev, t, side="right", method="compare_all") - 1),
+        jax.vmap(lambda ev, t: jnp.searchsorted(ev, t, side="left", method="compare_all") - 1),
         in_axes=(0, None),
-    )(partitions.events, t_mid)  # (k, m, e)
+    )(partitions.events, jax.lax.stop_gradient(end))  # (k, m, e)
+    own = jnp.maximum(own, 0)  # (an interval ending at t = 0 has zero length)
     seen = jnp.take_along_axis(partitions.visible, own, axis=-1) & scene.observed()[None, :, None]
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 

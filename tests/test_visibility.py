@@ -152,6 +152,20 @@ def test_close_camera_in_the_middle_of_a_panel_of_the_banana():
     ref = reference_visibility(H.to_reference(H.BANANA), cam, "foreshortened")
     assert rel(q, ref) < 1e-8
 
+def test_gradient_where_a_tangency_time_meets_a_panel_breakpoint():
+    """A camera on an axis-aligned tangent line of a circle touches it at a panel
+    breakpoint (t = 0, 1/2, 3/4). The zero-length interval between the tie's two pieces is
+    looked up on the tangency's near side, so dQ/dC equals central differences (before,
+    VisibleLength's was (0.2, 0.267) at (3, -1) against (0.2, -0.067))."""
+    value_and_grad = jax.value_and_grad(lambda c, s: ocp.visibility(H.circle_scene(), c, s))
+    fn = jax.jit(value_and_grad, static_argnums=1)
+    for objective in (VL, FS):
+        for cam in ([3.0, -1.0], [1.0, 3.0], [-1.0, -2.0]):
+            cam = jnp.asarray([cam])
+            grad = fn(cam, objective)[1]
+            fd = H.central_differences(lambda c: fn(c, objective)[0], cam, 1e-6)
+            assert rel(grad, fd) < 1e-7
+
 @pytest.mark.parametrize("case", range(len(CIRCLE_CASES)))
 def test_circle_gradients_closed_form(case):
     """dQ/d(camera, centre, radius) against the derivatives of the closed forms."""
