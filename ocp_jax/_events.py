@@ -346,12 +346,15 @@ def crossover_times(
     budget: int,
     iterations: int,
 ) -> Roots:
-    """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15."""
-    # Values on the grid from the sampled derivatives (no new curve evaluations).
-    frozen, ga, gb = jax.lax.stop_gradient((objective, group_a, group_b))
+    """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15.
+
+    They carry no derivative: the integrand is continuous across a crossover (both
+    groups' q are equal there), so the Leibniz terms of the two intervals that meet at it
+    cancel (Eq. 5.9); the cut only keeps the kink out of the quadrature."""
+    scene, objective, ga, gb = jax.lax.stop_gradient((scene, objective, group_a, group_b))
 
     def values_and_slopes(dx, ddx):
-        values, slopes, scale = crossover_terms(frozen, ga, gb, samples.x, dx, ddx)
+        values, slopes, scale = crossover_terms(objective, ga, gb, samples.x, dx, ddx)
         # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
         # q) either camera is the best one: count the node as just positive (by more
         # than the Hermite interpolant of the noise can dip), so that rounding noise
@@ -360,10 +363,11 @@ def crossover_times(
         values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
         return values[:, None], slopes[:, None]
 
+    # Values on the grid from the sampled derivatives (no new curve evaluations).
     nodes = samples.at_nodes(values_and_slopes)
     values, slopes = nodes if samples.dx_end is None else zip(*nodes)
     brackets = grid_brackets(samples.t, values, slopes, budget)
-    args = (scene, group_a, group_b, objective)
+    args = (scene, ga, gb, objective)
     t, valid = solve_roots(
         crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )
