@@ -1,11 +1,11 @@
 """Speed of git revisions side by side, measured in turn so that outside load falls on all.
 
-    python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3] [--one-core]
+    python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3] [--k 1] [--one-core]
         [--xla-flags FLAGS]
 
 Each revision is checked out in a temporary git worktree and measured in a fresh process
-(its `ocp_jax`; this checkout's evaluate.py: its k = 1 rows and its batch), revision after
-revision, `--rounds` times. Prints per measurement the best round of every revision and
+(its `ocp_jax`; this checkout's evaluate.py: its rows with `--k` cameras, default 1, and its
+batch), revision after revision, `--rounds` times. Prints per measurement the best round of every revision and
 the range over rounds. On a machine whose speed drifts between runs, only such
 interleaved comparisons tell a change from the drift; evaluate.py gives the absolute
 figures on a quiet machine.
@@ -40,9 +40,9 @@ MEASUREMENTS = [
 ] + [(BATCH, "/s", max)]
 
 
-def measure() -> None:
+def measure(k: int) -> None:
     """Print the measurements of the `ocp_jax` on sys.path as one JSON line (evaluate.py's
-    rows with k = 1 and its batch)."""
+    rows with k cameras and its batch)."""
     import jax
     import numpy as np
 
@@ -50,8 +50,8 @@ def measure() -> None:
     from evaluate import banana_batch, cases, engine_times, ocp, timed
 
     values = {}
-    for name, scene, cameras in cases(np.random.default_rng(0), quick=True):
-        if name in SCENES:
+    for name, scene, cameras in cases(np.random.default_rng(0), quick=k == 1):
+        if name in SCENES and cameras.shape[0] == k:
             compile_s, t_value, t_grad = engine_times(scene, cameras)
             values[f"{name} Q"] = 1e6 * t_value
             values[f"{name} value+grad"] = 1e6 * t_grad
@@ -68,14 +68,14 @@ def pin_to_one_core() -> None:
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 
-def run_revision(tree: str, one_core: bool, xla_flags: str) -> dict:
+def run_revision(tree: str, k: int, one_core: bool, xla_flags: str) -> dict:
     """The measurements of the checkout at `tree`, from a fresh process (pinned to one
     core if `one_core`, with `xla_flags` appended to XLA_FLAGS)."""
     environment = dict(os.environ, PYTHONPATH=tree)
     if xla_flags:
         environment["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {xla_flags}".strip()
     out = subprocess.run(
-        [sys.executable, os.path.abspath(__file__), "--measure"],
+        [sys.executable, os.path.abspath(__file__), "--measure", "--k", str(k)],
         cwd=tree,
         env=environment,
         capture_output=True,
@@ -93,6 +93,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("revisions", nargs="*", help="git revisions (commits, branches)")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--k", type=int, choices=(1, 2, 4), default=1, help="cameras per row")
     parser.add_argument(
         "--one-core", action="store_true", help="also measure each revision on one core"
     )
@@ -102,7 +103,7 @@ def main():
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.measure:
-        return measure()
+        return measure(args.k)
     if not args.revisions:
         parser.error("name at least one revision, e.g. HEAD~1 HEAD")
     if args.one_core and not hasattr(os, "sched_setaffinity"):
@@ -140,14 +141,16 @@ def main():
             rounds = {column: [] for column, *_ in columns}
             for i in range(args.rounds):
                 for column, *setting in columns:
-                    rounds[column].append(run_revision(*setting))
+                    rounds[column].append(run_revision(setting[0], args.k, *setting[1:]))
                     print(f"round {i + 1}/{args.rounds}: {column} measured", file=sys.stderr)
         finally:
             for tree in trees.values():
                 subprocess.run(git + ["worktree", "remove", "--force", tree], check=False)
 
     width = max(12, *(len(c) for c in rounds))
-    print(f"{args.rounds} interleaved rounds; each cell: best round (range over rounds)")
+    print(
+        f"{args.rounds} interleaved rounds, rows with k = {args.k} cameras; each cell: best round (range over rounds)"
+    )
     if args.xla_flags:
         print(f"+flags: XLA_FLAGS {args.xla_flags}")
     print(f"{'':34s}" + "".join(f"{c:>{width + 16}s}" for c in rounds))
