@@ -13,8 +13,9 @@ interval and camera, whether the camera sees it: one test per interval of each c
 own partition. Gauss-Legendre quadrature on every interval then gives Q; since the
 interval ends are differentiable functions of the cameras and the scene (implicit-function
 JVPs), reverse- or forward-mode autodiff through the quadrature is exactly the Leibniz
-rule of Eq. 5.9. (Cuts where the integrand is continuous, at crossovers and breakpoints,
-carry no derivative: the Leibniz terms of the two intervals meeting there cancel.)
+rule of Eq. 5.9. (Cuts where the integrand is continuous, at crossovers and at the points
+nearest to the cameras, carry no derivative: the Leibniz terms of the two intervals that
+meet there cancel.)
 """
 
 import functools
