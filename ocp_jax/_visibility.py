@@ -333,7 +333,9 @@ def _closest_points(scene, cameras: Vec, samples: Samples, sense):
 
 
 def _nearest_points(scene, cameras: Vec, samples: Samples, sense) -> Nearest:
-    """`_closest_points`, or its closed forms for a scene of conics (`_conics.py`)."""
+    """`_closest_points`, or its closed forms for a scene of conics (`_conics.py`); no
+    derivative (the checks are decisions, and the cuts at t* need none)."""
+    scene, cameras = jax.lax.stop_gradient((scene, cameras))
     if scene.conics_only:
         return Nearest(*conic_distances(scene.conic_frames(), scene.sides(), cameras))
     return Nearest(*_closest_points(scene, cameras, samples, sense))
@@ -385,7 +387,7 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
             options.max_crossovers,
             options.newton_iterations,
         )
-    nearest = _nearest_points(*jax.lax.stop_gradient((scene, cameras)), samples, sense)
+    nearest = _nearest_points(scene, cameras, samples, sense)
     return Events(partitions, groups, crossovers, samples, sense, cameras, poses, nearest)
 
 
@@ -546,8 +548,7 @@ def _value_and_failures(scene, cameras, objective, options):
         groups = camera_groups(objective, poses.shape[0])
         value = smoothed_value(scene, poses, objective, sense, groups, scene.observed())
         # (no too-close check: it concerns the exact engine's Gauss-Legendre nodes)
-        positions = jax.lax.stop_gradient(Vec.of(poses.position))
-        nearest = _nearest_points(jax.lax.stop_gradient(scene), positions, samples, sense)
+        nearest = _nearest_points(scene, Vec.of(poses.position), samples, sense)
         failures = _input_failures(scene, poses, nearest, samples, options.quadrature, False)
         failed = jnp.stack([f for f, _ in failures])
         return value, failed, [message for _, message in failures]

@@ -152,6 +152,7 @@ def test_close_camera_in_the_middle_of_a_panel_of_the_banana():
     ref = reference_visibility(H.to_reference(H.BANANA), cam, "foreshortened")
     assert rel(q, ref) < 1e-8
 
+
 def test_gradient_where_a_tangency_time_meets_a_panel_breakpoint():
     """A camera on an axis-aligned tangent line of a circle touches it at a panel
     breakpoint (t = 0, 1/2, 3/4). The zero-length interval between the tie's two pieces is
@@ -165,6 +166,7 @@ def test_gradient_where_a_tangency_time_meets_a_panel_breakpoint():
             grad = fn(cam, objective)[1]
             fd = H.central_differences(lambda c: fn(c, objective)[0], cam, 1e-6)
             assert rel(grad, fd) < 1e-7
+
 
 @pytest.mark.parametrize("case", range(len(CIRCLE_CASES)))
 def test_circle_gradients_closed_form(case):
@@ -1012,8 +1014,9 @@ def test_conic_camera_checks_in_closed_form_match_the_grid():
     """The camera checks of a scene of conics in closed form (no samples) against the
     grid + Newton closest points: the same sides of every conic, distances equal on
     circles (1e-12, and the same nearest points) and to first order on the ellipse (error
-    below d^2 / b, b its smaller semi-axis), at cameras far, near (1% and 1e-9 of a radius) and inside; the scene's
-    size and the radii (largest semi-axes) against dense samples."""
+    below d^2 / b, b its smaller semi-axis), at cameras far, near (1% and 1e-9 of a
+    radius) and inside; the scene's size and the radii (largest semi-axes) against dense
+    samples."""
     circle, ellipse = CONICS.curves[0], CONICS.curves[1]
     near = []
     for curve, t in ((circle, 0.3), (ellipse, 0.1), (ellipse, 0.55)):
