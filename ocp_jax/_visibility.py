@@ -81,7 +81,10 @@ class VisibilityOptions(eqx.Module):
       view wedge's edges), `max_range_crossings` (of a camera's range circle): root
       budgets per curve and camera; `max_crossovers`: per curve and pair of camera
       groups (of cameras, or of camera pairs for `Reconstruction`).
-      Exceeding one raises an error naming the option. In a scene of conics only
+      Exceeding one raises an error naming the option. Every array after the root
+      solves is sized by them, used or not: for scenes known to need fewer slots,
+      smaller budgets are the simplest speed-up (`benchmarks/budgets.py`: the banana
+      and 3 blobs use at most 4 tangency and 6 shadow slots). In a scene of conics only
       (circles, ellipses) the tangency and shadow times have closed forms: two tangency
       times per conic, and one shadow slot per ray and conic, packed into `max_shadows`
       only where there are more rays.
