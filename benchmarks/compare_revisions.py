@@ -4,11 +4,11 @@
         [--xla-flags FLAGS]
 
 Each revision is checked out in a temporary git worktree and measured in a fresh process
-(its `ocp_jax`; this checkout's evaluate.py: its rows with `--k` cameras, default 1, and its
-batch), revision after revision, `--rounds` times. Prints per measurement the best round of every revision and
-the range over rounds. On a machine whose speed drifts between runs, only such
-interleaved comparisons tell a change from the drift; evaluate.py gives the absolute
-figures on a quiet machine.
+(its `ocp_jax`; this checkout's evaluate.py: its rows with `--k` cameras, default 1, and
+its batch), revision after revision, `--rounds` times. Prints per measurement the best
+round of every revision and the range over rounds. On a machine whose speed drifts
+between runs, only such interleaved comparisons tell a change from the drift;
+evaluate.py gives the absolute figures on a quiet machine.
 
 With --one-core every revision is also measured in a process pinned to one CPU core
 (Linux's sched_setaffinity, as `taskset -c 0` does). XLA's CPU runtime sizes its thread
@@ -68,7 +68,7 @@ def pin_to_one_core() -> None:
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
 
 
-def run_revision(tree: str, k: int, one_core: bool, xla_flags: str) -> dict:
+def run_revision(tree: str, one_core: bool, xla_flags: str, k: int) -> dict:
     """The measurements of the checkout at `tree`, from a fresh process (pinned to one
     core if `one_core`, with `xla_flags` appended to XLA_FLAGS)."""
     environment = dict(os.environ, PYTHONPATH=tree)
@@ -141,7 +141,7 @@ def main():
             rounds = {column: [] for column, *_ in columns}
             for i in range(args.rounds):
                 for column, *setting in columns:
-                    rounds[column].append(run_revision(setting[0], args.k, *setting[1:]))
+                    rounds[column].append(run_revision(*setting, args.k))
                     print(f"round {i + 1}/{args.rounds}: {column} measured", file=sys.stderr)
         finally:
             for tree in trees.values():
@@ -149,7 +149,8 @@ def main():
 
     width = max(12, *(len(c) for c in rounds))
     print(
-        f"{args.rounds} interleaved rounds, rows with k = {args.k} cameras; each cell: best round (range over rounds)"
+        f"{args.rounds} interleaved rounds, rows with k = {args.k} cameras; "
+        "each cell: best round (range over rounds)"
     )
     if args.xla_flags:
         print(f"+flags: XLA_FLAGS {args.xla_flags}")

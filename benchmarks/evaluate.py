@@ -95,6 +95,14 @@ def cases(rng, quick: bool = False):
             yield name, scene, jnp.asarray(cameras)
 
 
+def case(name: str, k: int) -> tuple[ocp.Scene, jnp.ndarray]:
+    """(scene, cameras) of the table's row `name` with k cameras, as `main` draws them."""
+    for row_name, scene, cameras in cases(np.random.default_rng(0)):
+        if row_name == name and cameras.shape[0] == k:
+            return scene, cameras
+    raise ValueError(f"evaluate.py has no row {name!r} with k = {k}")
+
+
 def print_row(cells, widths):
     print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
 

@@ -16,9 +16,8 @@ import argparse
 import collections
 import re
 
-import numpy as np
 from compile_split import kernel_names, profiled_events
-from evaluate import VALUE, VALUE_AND_GRAD, cases, ocp
+from evaluate import VALUE, VALUE_AND_GRAD, case, ocp
 
 # An HLO instruction's name and the op_name of its metadata.
 _OP_NAME = re.compile(r"^\s+(?:ROOT )?%(\S+) = .*?op_name=\"([^\"]*)\"", re.MULTILINE)
@@ -33,9 +32,7 @@ def main():
     parser.add_argument("--program", default="value+grad", choices=["Q", "value+grad"])
     parser.add_argument("--top", type=int, default=15)
     args = parser.parse_args()
-    for name, scene, cameras in cases(np.random.default_rng(0)):
-        if name == args.row and cameras.shape[0] == args.k:
-            break
+    scene, cameras = case(args.row, args.k)
     program = VALUE if args.program == "Q" else VALUE_AND_GRAD
     compiled = program.lower(scene, cameras).compile()
     hlo = compiled.as_text()

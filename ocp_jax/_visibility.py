@@ -83,7 +83,7 @@ class VisibilityOptions(eqx.Module):
       groups (of cameras, or of camera pairs for `Reconstruction`).
       Exceeding one raises an error naming the option. Every array after the root
       solves is sized by them, used or not: for scenes known to need fewer slots,
-      smaller budgets are the simplest speed-up (`benchmarks/budgets.py`: the banana
+      smaller budgets can be a simple speed-up (`benchmarks/budgets.py`: the banana
       and 3 blobs use at most 4 tangency and 6 shadow slots). In a scene of conics only
       (circles, ellipses) the tangency and shadow times have closed forms: two tangency
       times per conic, and one shadow slot per ray and conic, packed into `max_shadows`
@@ -431,12 +431,12 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     # repeat each for every union interval it holds (10 blobs, 4 cameras: a third of the
     # time of value+grad).
     camera_events = partitions.events  # (k, m, L), sorted
-    opens = camera_events.at[..., 0].set(-jnp.inf)[..., None, :]
-    closes = jnp.concatenate(
+    opens = camera_events.at[..., 0].set(-jnp.inf)  # e_l
+    closes = jnp.concatenate(  # e_l+1
         [camera_events[..., 1:], jnp.full_like(camera_events[..., :1], jnp.inf)], -1
     )
     t = jax.lax.stop_gradient(end)[None, :, :, None]  # (1, m, e, 1)
-    holds = (opens < t) & (t <= closes[..., None, :])  # (k, m, e, L)
+    holds = (opens[..., None, :] < t) & (t <= closes[..., None, :])  # (k, m, e, L)
     seen = jnp.any(holds & partitions.visible[..., None, :], -1) & scene.observed()[None, :, None]
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 
