@@ -250,7 +250,11 @@ class BezierCurve(AbstractCurve):
         return max(4, self.degree)
 
     def grid_cells(self):
-        return 4 * self.degree
+        # Two cells per degree n, and no fewer than a conic's 16. The tangency function
+        # cross(x', x - C) is a polynomial of degree 2n - 1: at most 2n - 1 roots on 2n
+        # cells, fewer per cell than a cubic B-spline may have on its default grid (5 per
+        # knot span on 4 cells). The shadow functions have degree n.
+        return max(16, 2 * self.degree)
 
 
 def _uniform_bspline_blending(degree: int) -> np.ndarray:

@@ -74,9 +74,10 @@ class VisibilityOptions(eqx.Module):
     """Static sizes of the event computation (all Python ints; a pytree with no leaves).
 
     - `grid`: cells per curve for bracketing roots and occlusion tests; None (default)
-      takes the scene's own choice (4 per B-spline knot span, 4 per Bezier degree, 16 for
-      conics). Two roots of one event function closer than a cell are still separated
-      (Hermite split), but features much smaller than a cell need a finer grid.
+      takes the scene's own choice (4 per B-spline knot span, 2 per Bezier degree but at
+      least 16, 16 for conics). Two roots of one event function closer than a cell are
+      still separated (Hermite split), but features much smaller than a cell need a finer
+      grid.
     - `max_tangents`, `max_shadows` (shadows of tangency points and the crossings of a
       view wedge's edges), `max_range_crossings` (of a camera's range circle): root
       budgets per curve and camera; `max_crossovers`: per curve and pair of camera
