@@ -191,9 +191,10 @@ def main():
     per_set, batch = banana_batch(rng)
     print("\nbanana, 1024 single-camera sets, value+grad:")
     mapped = lambda b: jax.lax.map(per_set, b, batch_size=64)
+    options = ocp.compiler_options()
     for label, fn in (
-        ("jit(vmap)", jax.jit(jax.vmap(per_set), compiler_options=ocp.compiler_options())),
-        ("jit(lax.map, batch_size=64)", jax.jit(mapped, compiler_options=ocp.compiler_options())),
+        ("jit(vmap)", jax.jit(jax.vmap(per_set), compiler_options=options)),
+        ("jit(lax.map, batch_size=64)", jax.jit(mapped, compiler_options=options)),
         ("plain jit(vmap)", jax.jit(jax.vmap(per_set))),
     ):
         start = time.perf_counter()
