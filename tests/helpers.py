@@ -288,7 +288,7 @@ def near_double_camera(scene_name: str, curve: int, which: int, distance: float,
     """A camera at `distance` along the tangent line of the `which`-th inflection of
     `curve`, moved off the line (towards `side`) just enough that the tangency function
     has two roots `separation` apart (two roots close to a double root: closer than one
-    cell of the default 64-cell grid). Returns (camera, (t1, t2))."""
+    cell of the curve's default grid, `grid_cells()`). Returns (camera, (t1, t2))."""
     spec = to_reference(SCENES[scene_name])[curve]
     from reference import eval_curve
 
