@@ -110,13 +110,17 @@ def print_row(cells, widths):
     print("  ".join(str(c).rjust(w) for c, w in zip(cells, widths)), flush=True)
 
 
+def value(scene, cameras):
+    """Q of the table (the Foreshortened objective)."""
+    return ocp.visibility(scene, cameras, OBJECTIVE)
+
+
+value_and_grad = jax.value_and_grad(value, 1)
+
+
 def programs(**jit_options):
     """Q and its value+grad in the cameras, each under one `jax.jit(..., **jit_options)`."""
-
-    def value(scene, cameras):
-        return ocp.visibility(scene, cameras, OBJECTIVE)
-
-    return jax.jit(value, **jit_options), jax.jit(jax.value_and_grad(value, 1), **jit_options)
+    return jax.jit(value, **jit_options), jax.jit(value_and_grad, **jit_options)
 
 
 # Under a plain jax.jit (the other benchmarks compile these their own ways).
