@@ -139,13 +139,13 @@ def recommended(k: int) -> tuple[str, tuple, tuple]:
 
 
 def engine_times(
-    scene, cameras, value=VALUE, value_and_grad=VALUE_AND_GRAD
+    scene, cameras, value_program=VALUE, grad_program=VALUE_AND_GRAD
 ) -> tuple[float, float, float]:
     """Seconds: compile of value+grad, Q, value+grad (after compilation)."""
     start = time.perf_counter()
-    value_and_grad.lower(scene, cameras).compile()
+    grad_program.lower(scene, cameras).compile()
     compile_s = time.perf_counter() - start
-    return compile_s, timed(value, scene, cameras), timed(value_and_grad, scene, cameras)
+    return compile_s, timed(value_program, scene, cameras), timed(grad_program, scene, cameras)
 
 
 def banana_batch(rng, sets: int = 1024, k: int = 1):
@@ -158,9 +158,9 @@ def banana_batch(rng, sets: int = 1024, k: int = 1):
 
 def row(name, scene, cameras, reference=True):
     cameras = jnp.asarray(cameras)
-    compiled, (value_fn, value_and_grad), other = recommended(cameras.shape[0])
-    compile_s, t_value, t_grad = engine_times(scene, cameras, value_fn, value_and_grad)
-    value = float(value_fn(scene, cameras))
+    compiled, (value_fn, grad_fn), other = recommended(cameras.shape[0])
+    compile_s, t_value, t_grad = engine_times(scene, cameras, value_fn, grad_fn)
+    q = float(value_fn(scene, cameras))
     jax.block_until_ready(other(scene, cameras))  # (compiled before it is timed)
     t_other = timed(other, scene, cameras)
     cells = [name, cameras.shape[0], compiled, f"{compile_s:.1f}"]
@@ -172,10 +172,10 @@ def row(name, scene, cameras, reference=True):
             return reference_visibility(spec, cams, "foreshortened", REFERENCE_GRID, REFERENCE_TOL)
 
         ref, t_ref, speed_up = reference(), *paired_speed_up(reference, value_fn, scene, cameras)
-        cells += [f"{1e3 * t_ref:.0f}", f"{speed_up:.0f}x", f"{abs(value / ref - 1):.1e}"]
+        cells += [f"{1e3 * t_ref:.0f}", f"{speed_up:.0f}x", f"{abs(q / ref - 1):.1e}"]
     else:
         cells += ["-", "-", "-"]
-    return cells, value
+    return cells, q
 
 
 def main():
