@@ -20,7 +20,6 @@ ratios are of times taken within seconds of each other, not paired as in evaluat
 """
 
 import argparse
-import functools
 import os
 import sys
 
@@ -31,19 +30,16 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 # (evaluate.py sets up float64 and puts the tests' helpers on the path)
 from evaluate import (
-    REFERENCE_GRID,
-    REFERENCE_TOL,
     case,
-    ocp,
+    jit_options,
     print_row,
     recommended,
     rectangle_cameras,
+    reference_program,
     timed,
-    to_reference,
     value,
     value_and_grad,
 )
-from reference import reference_visibility
 
 
 def camera_sets(name: str, cameras: jnp.ndarray, sets: int, rng) -> jnp.ndarray:
@@ -74,19 +70,11 @@ def main():
     for name, k in (("banana", 1), ("blobs10", 4)):
         scene, cameras = case(name, k)
         batch = camera_sets(name, cameras, args.sets, rng)
-        compiled, programs, _ = recommended(k)
-        options = {"compiler_options": ocp.compiler_options()} if compiled == "opts" else {}
+        _, programs, _ = recommended(k)
+        options = jit_options(k)
         floor = jax.jit(lambda s, c: s.curves[0].control_points[0, 0] + c[0, 0], **options)
         t_floor = timed(floor, scene, batch[0])
-        reference = functools.partial(
-            reference_visibility,
-            to_reference(scene),
-            np.asarray(batch[0]),
-            "foreshortened",
-            REFERENCE_GRID,
-            REFERENCE_TOL,
-        )
-        t_ref = timed(reference, repeats=1)
+        t_ref = timed(reference_program(scene, batch[0]), repeats=1)
         for label, program, per_set in zip(("Q", "value+grad"), programs, (value, value_and_grad)):
             looped = in_loop(per_set, **options)
             jax.block_until_ready((program(scene, batch[0]), looped(scene, batch)))  # compile

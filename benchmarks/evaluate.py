@@ -123,19 +123,34 @@ def programs(**jit_options):
     return jax.jit(value, **jit_options), jax.jit(value_and_grad, **jit_options)
 
 
-# Under a plain jax.jit (the other benchmarks compile these their own ways).
+def jit_options(k: int) -> dict:
+    """The `jax.jit` options the README recommends for a program of k cameras: XLA's
+    memory-optimized scheduler for one camera (and for batches), none for several, where
+    it is about even, or slower."""
+    return {"compiler_options": ocp.compiler_options()} if k == 1 else {}
+
+
+# Under a plain jax.jit (the other benchmarks compile these their own ways), and with
+# the memory-optimized scheduler.
 VALUE, VALUE_AND_GRAD = programs()
-# With XLA's memory-optimized scheduler, which the README recommends for one camera and
-# for batches (for several cameras it is about even, or slower).
-TUNED_VALUE, TUNED_VALUE_AND_GRAD = programs(compiler_options=ocp.compiler_options())
+TUNED_VALUE, TUNED_VALUE_AND_GRAD = programs(**jit_options(1))
 
 
 def recommended(k: int) -> tuple[str, tuple, tuple]:
-    """(name, (Q, value+grad), other Q) for k cameras: compiled as the README recommends,
-    and Q compiled the other way."""
-    if k == 1:
+    """(name, (Q, value+grad), other Q) for k cameras: compiled as the README recommends
+    (`jit_options`), and Q compiled the other way."""
+    if jit_options(k):
         return "opts", (TUNED_VALUE, TUNED_VALUE_AND_GRAD), VALUE
     return "plain", (VALUE, VALUE_AND_GRAD), TUNED_VALUE
+
+
+def reference_program(scene: ocp.Scene, cameras):
+    """A call of the NumPy reference (tests/reference.py) on `scene` and `cameras` at the
+    table's accuracy."""
+    spec, cameras = to_reference(scene), np.asarray(cameras)
+    return lambda: reference_visibility(
+        spec, cameras, "foreshortened", REFERENCE_GRID, REFERENCE_TOL
+    )
 
 
 def engine_times(
@@ -166,11 +181,7 @@ def row(name, scene, cameras, reference=True):
     cells = [name, cameras.shape[0], compiled, f"{compile_s:.1f}"]
     cells += [f"{1e6 * t_value:.0f}", f"{1e6 * t_grad:.0f}", f"{1e6 * t_other:.0f}"]
     if reference:
-        spec, cams = to_reference(scene), np.asarray(cameras)
-
-        def reference():
-            return reference_visibility(spec, cams, "foreshortened", REFERENCE_GRID, REFERENCE_TOL)
-
+        reference = reference_program(scene, cameras)
         ref, t_ref, speed_up = reference(), *paired_speed_up(reference, value_fn, scene, cameras)
         cells += [f"{1e3 * t_ref:.0f}", f"{speed_up:.0f}x", f"{abs(q / ref - 1):.1e}"]
     else:
