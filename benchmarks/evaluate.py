@@ -4,7 +4,7 @@
 
 Prints one table: per scene and number of cameras k, the compile time of value+grad,
 the time of Q and of value+grad (best of three medians of repeated calls), compiled as
-the README recommends ("XLA's memory-optimized scheduler"): with `ocp.compiler_options()`
+the README recommends ("Which program for which job"): with `ocp.compiler_options()`
 for one camera and for batches, under a plain `jax.jit` for several cameras; Q compiled
 the other way beside them, and the independent NumPy reference (tests/reference.py) at
 matching accuracy (its best median), the speed-up of Q over it (the median of three
