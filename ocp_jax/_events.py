@@ -26,6 +26,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._jvp import is_zero, perturbed_jvp
 from ._materialize import materialize
+from ._reductions import fused_reduce
 from ._roots import first_true, grid_brackets, solve_roots
 from ._vec import Vec, add, cross, dot, norm, sub
 
@@ -223,10 +224,10 @@ def join_sources(*sources: RaySources) -> RaySources:
 def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
     """A disc around each curve: centre of its grid points, radius to the farthest one
     plus the longest step between grid points (an arc never strays farther)."""
-    centre = samples.x.map(lambda a: jnp.mean(a, axis=1))
+    centre = samples.x.map(lambda a: fused_reduce(jnp.sum, a, 1) / a.shape[1])
     reach = norm(sub(samples.x, centre.map(lambda a: a[:, None])))
     step = norm(samples.x.map(lambda a: jnp.diff(a, axis=1)))
-    return centre, jnp.max(reach, axis=1) + jnp.max(step, axis=1)
+    return centre, fused_reduce(jnp.max, reach, 1) + fused_reduce(jnp.max, step, 1)
 
 
 def shadow_times(

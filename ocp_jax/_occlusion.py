@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._events import Samples
+from ._reductions import fused_reduce
 from ._roots import cell_ends, hermite_extremum
 from ._vec import Vec, cross, dot, sub
 
@@ -44,7 +45,7 @@ def in_view(camera, point: Vec) -> Bool[Array, "..."]:
 def orientation(samples: Samples) -> Float[Array, " m"]:
     """+1 for counter-clockwise curves, -1 for clockwise (sign of the shoelace area)."""
     x = samples.x
-    return jnp.sign(jnp.sum(x.x[:, :-1] * x.y[:, 1:] - x.y[:, :-1] * x.x[:, 1:], -1))
+    return jnp.sign(fused_reduce(jnp.sum, x.x[:, :-1] * x.y[:, 1:] - x.y[:, :-1] * x.x[:, 1:]))
 
 
 def _crosses_segment(g, dg, depth, reach, h):
@@ -99,7 +100,7 @@ def visible_points(
     others = _crosses_segment(
         cross(dd, sight_j), dg_j, dot(dd, sight_j), reach[:, :, None, None], h
     )
-    blocked = jnp.any(others, axis=(-1, -2))
+    blocked = fused_reduce(jnp.any, others, (-1, -2))
 
     # The query's own curve: deflate the trivial root at t_mid, r = g / (t - t_mid),
     # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 there.
@@ -117,4 +118,4 @@ def visible_points(
 
     dr = samples.at_nodes(slopes_at)
     own = _crosses_segment(r, dr, dot(dq, own_sight), reach[:, :, None], h)
-    return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~jnp.any(own, axis=-1)
+    return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~fused_reduce(jnp.any, own)

@@ -62,6 +62,7 @@ from ._objectives import (
 )
 from ._occlusion import facing, in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
+from ._reductions import fused_reduce
 from ._roots import safe_divisor
 from ._scene import Scene
 from ._smoothed import Smoothed, smoothed_value
@@ -358,7 +359,8 @@ def _check_cameras(scene, cameras: Vec, nearest: Nearest, samples: Samples, quad
     if scene.conics_only:  # closed forms (`_conics.py`)
         size, radius = conic_extent(scene.conic_frames())
     else:
-        size = jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y))
+        size = fused_reduce(jnp.max, jnp.abs(samples.x.x), None)
+        size = size + fused_reduce(jnp.max, jnp.abs(samples.x.y), None)
         _, radius = bounding_discs(samples)
     on_curve = jnp.any(distance <= jnp.sqrt(jnp.finfo(distance.dtype).eps) * size, axis=0)
     inside = jnp.any(outward < 0, axis=0) & ~on_curve
@@ -418,7 +420,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     per_camera = _fixed_slots(scene, partitions.events, partitions.ranges) + cut
     fixed = pieces[0].shape[1] + len(partitions.events) * per_camera
     budget = _interval_budget(options.max_intervals, fixed, union.shape[1])
-    used = jnp.sum(union < 1.0, axis=1)
+    used = fused_reduce(jnp.sum, union < 1.0)
     start, end = _intervals(union[:, :budget])
 
     # Viewability matrix: camera interval l [e_l, e_l+1] holds union interval j when
@@ -438,11 +440,13 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     )
     t = jax.lax.stop_gradient(end)[None, :, :, None]  # (1, m, e, 1)
     holds = (opens[..., None, :] < t) & (t <= closes[..., None, :])  # (k, m, e, L)
-    seen = jnp.any(holds & partitions.visible[..., None, :], -1) & scene.observed()[None, :, None]
+    seen = fused_reduce(jnp.any, holds & partitions.visible[..., None, :])
+    seen = seen & scene.observed()[None, :, None]
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 
     args = (scene, group_members(events.cameras, events.groups), objective, seen_by_group)
-    value = jnp.sum(gauss_legendre(_integrand, start, end, args, options.quadrature))
+    integrals = gauss_legendre(_integrand, start, end, args, options.quadrature)  # (m, e)
+    value = fused_reduce(jnp.sum, integrals, None)
     return value, (used, budget)
 
 
@@ -483,7 +487,7 @@ def _finite_scene(scene, samples) -> Array:
     samples, its parameters)."""
     if scene.conics_only:
         return jnp.all(jnp.stack([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(scene)]))
-    return jnp.all(jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y))
+    return fused_reduce(jnp.all, jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y), None)
 
 
 def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):
@@ -511,7 +515,7 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
     tested = _interval_budget(options.max_camera_intervals, fixed, partitions.events.shape[-1])
     budgets.append(
         (
-            jnp.sum(partitions.events < 1.0, axis=-1),
+            fused_reduce(jnp.sum, partitions.events < 1.0),
             tested,
             "event intervals of one camera",
             # (the union of all cameras' intervals then needs more room too)

@@ -1,0 +1,47 @@
+"""Reductions that XLA's CPU backend computes in one kernel.
+
+The CPU backend rewrites a reduction over more than 32 elements into a windowed reduction
+and a reduction of the windows (XLA's TreeReductionRewriter), and the windowed one fuses
+with neither its elementwise producer nor its consumer: three kernels where one would do.
+The grids of the built-in scenes are longer than that (the banana's 36 cells, 37 nodes).
+Folding the reduced axis in halves first, with the reduction's own elementwise operation,
+keeps every reduction at most 32 long, and the folds fuse into the reduction's kernel.
+"""
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+_LONGEST = 32  # XLA's CPU backend splits longer reductions
+# Each reduction's elementwise operation, and whether it is idempotent (op(a, a) = a), so
+# that an odd axis may fold onto itself with one element in both halves.
+_FOLDS = {
+    jnp.sum: (jnp.add, False),
+    jnp.max: (jnp.maximum, True),
+    jnp.min: (jnp.minimum, True),
+    jnp.any: (jnp.logical_or, True),
+    jnp.all: (jnp.logical_and, True),
+}
+
+
+def fused_reduce(reduction, x: Array, axis: int | tuple[int, ...] | None = -1) -> Array:
+    """`reduction(x, axis)` for `reduction` one of jnp.sum, max, min, any and all, over
+    one axis, several or all (None), in one kernel on XLA's CPU backend: the reduced axes
+    are merged into one and folded in halves (a_i op a_(i + n/2)) until it is at most 32
+    long. (A sum of booleans counts them, as jnp.sum does.)"""
+    combine, idempotent = _FOLDS[reduction]
+    x = jnp.asarray(x)
+    if reduction is jnp.sum and x.dtype == jnp.bool_:
+        x = x.astype(int)
+    axes = tuple(range(x.ndim)) if axis is None else np.atleast_1d(axis).tolist()
+    axes = [a % x.ndim for a in axes]
+    kept = [a for a in range(x.ndim) if a not in axes]
+    x = jnp.transpose(x, kept + axes).reshape([x.shape[a] for a in kept] + [-1])
+    while x.shape[-1] > _LONGEST:
+        n = x.shape[-1]
+        if n % 2 and not idempotent:
+            x = jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, 1)])
+            n += 1
+        half = (n + 1) // 2
+        x = combine(x[..., :half], x[..., n - half :])
+    return reduction(x, axis=-1)
