@@ -203,8 +203,8 @@ class BezierCurve(AbstractCurve):
         return self.control_points.shape[0] - 1
 
     def costly_evaluation(self) -> bool:
-        # Measured (benchmarks/HISTORY.md, "Each curve evaluation compiled once"): the degree-18 banana
-        # gains from stored Newton steps; cubic B-splines and circles lose.
+        # Measured (benchmarks/HISTORY.md, "Each curve evaluation compiled once"): the
+        # degree-18 banana gains from stored Newton steps; cubic B-splines and circles lose.
         return self.degree >= 8
 
     @classmethod

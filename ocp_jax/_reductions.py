@@ -8,6 +8,8 @@ Folding the reduced axis in halves first, with the reduction's own elementwise o
 keeps every reduction at most 32 long, and the folds fuse into the reduction's kernel.
 """
 
+from collections.abc import Callable
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
@@ -24,7 +26,9 @@ _FOLDS = {
 }
 
 
-def fused_reduce(reduction, x: Array, axis: int | tuple[int, ...] | None = -1) -> Array:
+def fused_reduce(
+    reduction: Callable[..., Array], x: Array, axis: int | tuple[int, ...] | None = -1
+) -> Array:
     """`reduction(x, axis)` for `reduction` one of jnp.sum, max, min, any and all, over
     one axis, several or all (None), in one kernel on XLA's CPU backend: the reduced axes
     are merged into one and folded in halves (a_i op a_(i + n/2)) until it is at most 32
