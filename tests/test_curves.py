@@ -339,7 +339,8 @@ def test_curves_from_constants_can_be_built_inside_jit():
 def test_costly_evaluation_marks_long_polynomials_only():
     """Newton steps store F (`materialize`) only on scenes with a costly curve: a Bezier
     of degree >= 8 (the degree-18 banana), not cubic B-splines, low-degree Beziers or
-    conics, whose stored copy's kernels cost more than recomputing F (benchmarks/HISTORY.md, "Each curve evaluation compiled once")."""
+    conics, whose stored copy's kernels cost more than recomputing F (benchmarks/HISTORY.md,
+    "Each curve evaluation compiled once")."""
     banana = ocp.scenes.banana()
     assert banana.curves[0].degree == 18 and banana.costly_evaluation()
     cubic = ocp.BezierCurve.closed_c2(np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 2.0]]))

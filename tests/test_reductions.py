@@ -29,14 +29,30 @@ def test_numbers_match_jnp(shape, axis, reduction):
 
 
 @pytest.mark.parametrize("shape, axis", SHAPES_AND_AXES)
-@pytest.mark.parametrize("reduction", [jnp.any, jnp.all, jnp.sum])
-def test_booleans_match_jnp(shape, axis, reduction):
-    """Including a sum of booleans, which counts them (their fold adds, not ors)."""
-    x = jnp.asarray(np.random.default_rng(1).uniform(size=shape) < 0.9)
+@pytest.mark.parametrize("reduction, density", [(jnp.any, 0.03), (jnp.all, 0.97), (jnp.sum, 0.5)])
+def test_booleans_match_jnp(shape, axis, reduction, density):
+    """Masks sparse (any) or dense (all) enough that the results differ between rows;
+    a sum of booleans counts them (its fold adds, not ors) in jnp.sum's integer dtype."""
+    x = jnp.asarray(np.random.default_rng(1).uniform(size=shape) < density)
     expected = reduction(x, axis=axis)
     got = fused_reduce(reduction, x, axis)
     assert got.dtype == expected.dtype
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("n", [7, 32, 33, 36, 37, 130])
+def test_every_entry_reaches_the_result(n):
+    """One entry that decides the result, at every position of the axis (the odd last
+    entry and the overlap of idempotent folds included): any of a single True, all of a
+    single False, the max and min of a single extreme, the sum of a single one."""
+    for position in range(n):
+        hot = jnp.zeros((2, n), bool).at[1, position].set(True)
+        spike = hot.astype(float)
+        assert fused_reduce(jnp.any, hot).tolist() == [False, True]
+        assert fused_reduce(jnp.all, ~hot).tolist() == [True, False]
+        assert fused_reduce(jnp.max, spike).tolist() == [0.0, 1.0]
+        assert fused_reduce(jnp.min, -spike).tolist() == [0.0, -1.0]
+        assert fused_reduce(jnp.sum, spike).tolist() == [0.0, 1.0]
 
 
 def test_a_long_reduction_is_not_split():
