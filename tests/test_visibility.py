@@ -1450,3 +1450,77 @@ def test_curve_points_derivative_is_the_tangent_and_the_control_point_jvp():
 def test_invalid_options_raise(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ocp.VisibilityOptions(**kwargs)
+
+
+def _outward_sign(curve: dict) -> float:
+    """+1 where the outward normal of a reference curve is (y', -x') (counter-clockwise,
+    from its shoelace area), else -1."""
+    x = eval_curve(curve, np.arange(20000) / 20000)[0]
+    return np.sign(np.sum(x[:, 0] * np.roll(x[:, 1], -1) - np.roll(x[:, 0], -1) * x[:, 1]))
+
+
+def _reference_nearest(curve: dict, camera, samples: int = 20000):
+    """The point of a reference curve nearest to `camera`, in NumPy: the nearest of
+    `samples` equally spaced points, then bisection of g(t) = (x(t) - C) . x'(t) (negative
+    before the nearest point, positive after) in the two cells around it. Returns the
+    distance, negative where the camera lies on the inward side, and t."""
+    x = eval_curve(curve, np.arange(samples) / samples)[0]
+    lo, hi = (np.argmin(np.sum((x - camera) ** 2, -1)) + np.array([-1.0, 1.0])) / samples
+
+    def g(s):
+        x, dx, _ = eval_curve(curve, s)
+        return np.dot(x - camera, dx)
+
+    assert g(lo) < 0 < g(hi)
+    while lo < 0.5 * (lo + hi) < hi:
+        lo, hi = (0.5 * (lo + hi), hi) if g(0.5 * (lo + hi)) < 0 else (lo, 0.5 * (lo + hi))
+    x, dx, _ = eval_curve(curve, lo)
+    outward = _outward_sign(curve) * np.array([dx[1], -dx[0]])
+    return np.sign(np.dot(camera - x, outward)) * np.linalg.norm(camera - x), np.mod(lo, 1.0)
+
+
+@pytest.mark.parametrize("name", ["mixed", "banana"])
+def test_signed_distances_match_a_dense_numpy_search(name):
+    """Distances from cameras to every curve (the camera checks and a `Region`'s
+    clearance), from the nearest grid node and six Newton steps, against a dense
+    search and bisection in NumPy: far cameras, and cameras 1e-3 outside, 1e-3 inside and
+    1e-9 outside each curve (the B-spline, the Bezier, the ellipse's 16 cells, the
+    banana's degree 18); their gradient is the signed unit vector from the nearest point."""
+    scene = H.SCENES[name]
+    specs = H.to_reference(scene)
+    far = H.BANANA_CAMERAS if name == "banana" else H.CAMERAS[name][1]
+    near = []
+    for spec in specs:
+        for t in (0.13, 0.61):
+            x, dx, _ = eval_curve(spec, t)
+            outward = _outward_sign(spec) * np.array([dx[1], -dx[0]]) / np.linalg.norm(dx)
+            near += [x + s * outward for s in (1e-3, -1e-3, 1e-9)]
+    cameras = np.concatenate([np.asarray(far, float), near])
+    reference = np.array([[_reference_nearest(s, c) for s in specs] for c in cameras])
+    distances = np.asarray(_signed_distances()(scene, jnp.asarray(cameras)))
+    # (to rounding: 10 ulps of the scene's largest coordinate)
+    size = max(np.abs(eval_curve(s, np.linspace(0, 1, 1001))[0]).max() for s in specs)
+    atol = 10 * np.finfo(float).eps * size
+    np.testing.assert_allclose(distances, reference[..., 0], rtol=1e-12, atol=atol)
+    # The gradient in each camera: the unit vector from its nearest point, signed.
+    gradient = np.asarray(_signed_distances_gradients()(scene, jnp.asarray(cameras[: len(far)])))
+    for c, camera in enumerate(cameras[: len(far)]):
+        for i, spec in enumerate(specs):
+            x = eval_curve(spec, reference[c, i, 1])[0]
+            unit = (camera - x) / np.linalg.norm(camera - x) * np.sign(reference[c, i, 0])
+            np.testing.assert_allclose(gradient[c, i], unit, atol=1e-9)
+
+
+@functools.cache
+def _signed_distances():
+    return jax.jit(_visibility.signed_distances)
+
+
+@functools.cache
+def _signed_distances_gradients():
+    """d(distance of camera c to curve i) / d(camera c), shape (k, m, 2)."""
+
+    def per_camera(scene, camera):
+        return jax.jacobian(lambda c: _visibility.signed_distances(scene, c[None])[0])(camera)
+
+    return jax.jit(jax.vmap(per_camera, in_axes=(None, 0)))
