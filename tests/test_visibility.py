@@ -1484,8 +1484,9 @@ def test_signed_distances_match_a_dense_numpy_search(name):
     """Distances from cameras to every curve (the camera checks and a `Region`'s
     clearance), from the nearest grid node and six Newton steps, against a dense
     search and bisection in NumPy: far cameras, and cameras 1e-3 outside, 1e-3 inside and
-    1e-9 outside each curve (the B-spline, the Bezier, the ellipse's 16 cells, the
-    banana's degree 18); their gradient is the signed unit vector from the nearest point."""
+    1e-9 outside each curve (a B-spline, a Bezier, a circle and an ellipse on the mixed
+    scene's 32 cells, the banana's degree 18 on 36); their gradient is the signed unit
+    vector from the nearest point."""
     scene = H.SCENES[name]
     specs = H.to_reference(scene)
     far = H.BANANA_CAMERAS if name == "banana" else H.CAMERAS[name][1]
