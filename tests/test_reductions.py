@@ -45,14 +45,15 @@ def test_every_entry_reaches_the_result(n):
     """One entry that decides the result, at every position of the axis (the odd last
     entry and the overlap of idempotent folds included): any of a single True, all of a
     single False, the max and min of a single extreme, the sum of a single one."""
-    for position in range(n):
-        hot = jnp.zeros((2, n), bool).at[1, position].set(True)
-        spike = hot.astype(float)
-        assert fused_reduce(jnp.any, hot).tolist() == [False, True]
-        assert fused_reduce(jnp.all, ~hot).tolist() == [True, False]
-        assert fused_reduce(jnp.max, spike).tolist() == [0.0, 1.0]
-        assert fused_reduce(jnp.min, -spike).tolist() == [0.0, -1.0]
-        assert fused_reduce(jnp.sum, spike).tolist() == [0.0, 1.0]
+    # Row 0 holds no decisive entry, row 1 + p one at position p.
+    hot = jnp.concatenate([jnp.zeros((1, n), bool), jnp.eye(n, dtype=bool)])
+    spike = hot.astype(float)
+    found = [0.0] + [1.0] * n
+    assert fused_reduce(jnp.any, hot).tolist() == [False] + [True] * n
+    assert fused_reduce(jnp.all, ~hot).tolist() == [True] + [False] * n
+    assert fused_reduce(jnp.max, spike).tolist() == found
+    assert fused_reduce(jnp.min, -spike).tolist() == [-v for v in found]
+    assert fused_reduce(jnp.sum, spike).tolist() == found
 
 
 def test_a_long_reduction_is_not_split():
