@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
-from reference import eval_curve, reference_visibility, reference_visible_intervals
+from reference import _bisect, eval_curve, reference_visibility, reference_visible_intervals
 from scipy import integrate
 
 import helpers as H
@@ -1452,31 +1452,35 @@ def test_invalid_options_raise(kwargs, match):
         ocp.VisibilityOptions(**kwargs)
 
 
-def _outward_sign(curve: dict) -> float:
-    """+1 where the outward normal of a reference curve is (y', -x') (counter-clockwise,
-    from its shoelace area), else -1."""
+def _outward_normals(curve: dict, t) -> np.ndarray:
+    """Unit outward normals of a reference curve at the parameters `t`: (y', -x') / |x'|
+    turned by the orientation of its dense polygon (shoelace area)."""
     x = eval_curve(curve, np.arange(20000) / 20000)[0]
-    return np.sign(np.sum(x[:, 0] * np.roll(x[:, 1], -1) - np.roll(x[:, 0], -1) * x[:, 1]))
+    ccw = np.sign(np.sum(x[:, 0] * np.roll(x[:, 1], -1) - np.roll(x[:, 0], -1) * x[:, 1]))
+    dx = eval_curve(curve, t)[1]
+    return ccw * np.stack([dx[..., 1], -dx[..., 0]], -1) / np.linalg.norm(dx, axis=-1)[..., None]
 
 
-def _reference_nearest(curve: dict, camera, samples: int = 20000):
-    """The point of a reference curve nearest to `camera`, in NumPy: the nearest of
-    `samples` equally spaced points, then bisection of g(t) = (x(t) - C) . x'(t) (negative
-    before the nearest point, positive after) in the two cells around it. Returns the
-    distance, negative where the camera lies on the inward side, and t."""
+def _reference_nearest(curve: dict, cameras, samples: int = 20000):
+    """The points of a reference curve nearest to `cameras` (k, 2), in NumPy: the nearest
+    of `samples` equally spaced points, then bisection (`reference._bisect`) of
+    g(t) = (x(t) - C) . x'(t), negative before the nearest point and positive after, in
+    the two cells around it. Returns the distances, negative where a camera lies on the
+    inward side, and the parameters t, arrays (k,)."""
     x = eval_curve(curve, np.arange(samples) / samples)[0]
-    lo, hi = (np.argmin(np.sum((x - camera) ** 2, -1)) + np.array([-1.0, 1.0])) / samples
+    nearest = np.argmin(np.sum((x[None] - cameras[:, None]) ** 2, -1), axis=1)
+    lo, hi = (nearest - 1.0) / samples, (nearest + 1.0) / samples
 
-    def g(s):
+    def g(rows, s):
         x, dx, _ = eval_curve(curve, s)
-        return np.dot(x - camera, dx)
+        return np.sum((x - cameras[rows]) * dx, -1)
 
-    assert g(lo) < 0 < g(hi)
-    while lo < 0.5 * (lo + hi) < hi:
-        lo, hi = (0.5 * (lo + hi), hi) if g(0.5 * (lo + hi)) < 0 else (lo, 0.5 * (lo + hi))
-    x, dx, _ = eval_curve(curve, lo)
-    outward = _outward_sign(curve) * np.array([dx[1], -dx[0]])
-    return np.sign(np.dot(camera - x, outward)) * np.linalg.norm(camera - x), np.mod(lo, 1.0)
+    rows = np.arange(len(cameras))
+    assert np.all(g(rows, lo) < 0) and np.all(g(rows, hi) > 0)
+    t = np.mod(_bisect(g, rows, lo, hi, g(rows, lo)), 1.0)
+    offset = cameras - eval_curve(curve, t)[0]
+    side = np.sign(np.sum(offset * _outward_normals(curve, t), -1))
+    return side * np.linalg.norm(offset, axis=-1), t
 
 
 @pytest.mark.parametrize("name", ["mixed", "banana"])
@@ -1490,26 +1494,26 @@ def test_signed_distances_match_a_dense_numpy_search(name):
     scene = H.SCENES[name]
     specs = H.to_reference(scene)
     far = H.BANANA_CAMERAS if name == "banana" else H.CAMERAS[name][1]
-    near = []
-    for spec in specs:
-        for t in (0.13, 0.61):
-            x, dx, _ = eval_curve(spec, t)
-            outward = _outward_sign(spec) * np.array([dx[1], -dx[0]]) / np.linalg.norm(dx)
-            near += [x + s * outward for s in (1e-3, -1e-3, 1e-9)]
-    cameras = np.concatenate([np.asarray(far, float), near])
-    reference = np.array([[_reference_nearest(s, c) for s in specs] for c in cameras])
-    distances = np.asarray(_signed_distances()(scene, jnp.asarray(cameras)))
+    t = np.array([0.13, 0.61])
+    near = [
+        eval_curve(spec, t)[0] + offset * _outward_normals(spec, t)
+        for spec in specs
+        for offset in (1e-3, -1e-3, 1e-9)
+    ]
+    cameras = np.concatenate([np.asarray(far, float), *near])
+    distance, t_nearest = np.stack([_reference_nearest(s, cameras) for s in specs], -1)  # (k, m)
+    got = np.asarray(_signed_distances()(scene, jnp.asarray(cameras)))
     # (to rounding: 10 ulps of the scene's largest coordinate)
     size = max(np.abs(eval_curve(s, np.linspace(0, 1, 1001))[0]).max() for s in specs)
     atol = 10 * np.finfo(float).eps * size
-    np.testing.assert_allclose(distances, reference[..., 0], rtol=1e-12, atol=atol)
-    # The gradient in each camera: the unit vector from its nearest point, signed.
-    gradient = np.asarray(_signed_distances_gradients()(scene, jnp.asarray(cameras[: len(far)])))
-    for c, camera in enumerate(cameras[: len(far)]):
-        for i, spec in enumerate(specs):
-            x = eval_curve(spec, reference[c, i, 1])[0]
-            unit = (camera - x) / np.linalg.norm(camera - x) * np.sign(reference[c, i, 0])
-            np.testing.assert_allclose(gradient[c, i], unit, atol=1e-9)
+    np.testing.assert_allclose(got, distance, rtol=1e-12, atol=atol)
+    # The gradient in each far camera: the unit vector from its nearest point, signed.
+    k = len(far)
+    gradient = np.asarray(_signed_distances_gradients()(scene, jnp.asarray(cameras[:k])))
+    for i, spec in enumerate(specs):
+        offset = cameras[:k] - eval_curve(spec, t_nearest[:k, i])[0]
+        unit = offset / np.linalg.norm(offset, axis=-1)[:, None] * np.sign(distance[:k, i, None])
+        np.testing.assert_allclose(gradient[:, i], unit, atol=1e-9)
 
 
 @functools.cache
