@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._events import Samples
+from ._materialize import computed_on_one_thread
 from ._reductions import fused_reduce
 from ._roots import cell_ends, hermite_extremum
 from ._vec import Vec, cross, dot, sub
@@ -82,9 +83,11 @@ def visible_points(
     t_mid: Float[Array, "m q"],
     x_mid: Vec,
     dx_mid: Vec,
+    one_thread: bool = False,
 ) -> Bool[Array, "m q"]:
     """chi(t_mid[i, k], camera) for query points x_mid, x'_mid (arrays (m, q)) on every
-    curve i."""
+    curve i; with `one_thread`, the test on the own curve is one kernel on one thread
+    (`computed_on_one_thread`)."""
     m = t_mid.shape[0]
     h = jnp.diff(samples.t)
     d = sub(x_mid, camera)  # (m, q)
@@ -117,5 +120,10 @@ def visible_points(
         return jnp.where(near, 0.0, (dg - r) / offset)
 
     dr = samples.at_nodes(slopes_at)
-    own = _crosses_segment(r, dr, dot(dq, own_sight), reach[:, :, None], h)
-    return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~fused_reduce(jnp.any, own)
+
+    def crosses_own(*args):
+        return fused_reduce(jnp.any, _crosses_segment(*args))
+
+    args = (r, dr, dot(dq, own_sight), reach[:, :, None], h)
+    own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
+    return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~own

@@ -51,7 +51,7 @@ from ._events import (
     tangency_times,
     wedge_edges,
 )
-from ._materialize import materialize
+from ._materialize import computed_on_one_thread, materialize
 from ._objectives import (
     AbstractLocalObjective,
     Foreshortened,
@@ -208,6 +208,15 @@ def _as_input(cameras):
     return cameras if isinstance(cameras, Camera) else jnp.asarray(cameras)
 
 
+def _one_thread(cameras: Vec) -> bool:
+    """Whether the kernels that test the intervals' visibility and evaluate the integrand
+    run on one thread (`computed_on_one_thread`), static: with one camera they take
+    microseconds, and handing half of one to a second thread costs more than it saves
+    (the banana: a quarter of a call); with several, splitting them pays (10 blobs with
+    4 cameras ran 6-13% slower on one thread). benchmarks/HISTORY.md."""
+    return cameras.x.shape[0] == 1
+
+
 def _intervals(events: Float[Array, "m e"]):
     ends = jnp.concatenate([events[:, 1:], jnp.ones_like(events[:, :1])], 1)
     return events, ends
@@ -232,7 +241,9 @@ def _interval_budget(option: int | None, fixed: int, slots: int) -> int:
     return min(option, slots) if option is not None else fixed + (slots - fixed + 1) // 2
 
 
-def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPartition:
+def _camera_partition(
+    scene, pose: Camera, samples, sense, options, one_thread: bool
+) -> CameraPartition:
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
     frozen = jax.lax.stop_gradient(pose)  # the visibility decisions carry no derivative
@@ -273,17 +284,20 @@ def _camera_partition(scene, pose: Camera, samples, sense, options) -> CameraPar
         blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
         visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
     else:
-        visible = visible_points(seen_from, samples, sense, t_mid, x_mid, dx_mid)
+        visible = visible_points(seen_from, samples, sense, t_mid, x_mid, dx_mid, one_thread)
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
     return CameraPartition(events, visible, tangents, shadows, ranges)
 
 
-def _integrand(t, args):
+def _integrand(t, args, one_thread: bool):
     """max over the camera groups that see the interval of q(x(t), x'(t), G) ||x'(t)||,
     for t of shape (m, e, g) (the groups' visibility `seen` has shape (G, m, e))."""
     scene, group, objective, seen = args
-    x, dx = materialize(scene.components(t)[:2], scene)
+    if one_thread:
+        x, dx = computed_on_one_thread(lambda s, t: s.components(t)[:2], (scene, t), scene)
+    else:
+        x, dx = materialize(scene.components(t)[:2], scene)
 
     # A maximum of G terms, not a reduction over a stacked (G, m, e, g) array: XLA's CPU
     # backend runs such a reduction over a short leading axis (and those of its
@@ -377,7 +391,8 @@ def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Eve
     cameras = Vec.of(poses.position)
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = _sense(scene, samples)
-    partitions = jax.vmap(_camera_partition, in_axes=(None, 0, None, None, None))(
+    partition = functools.partial(_camera_partition, one_thread=_one_thread(cameras))
+    partitions = jax.vmap(partition, in_axes=(None, 0, None, None, None))(
         scene, poses, samples, sense, options
     )
     groups = camera_groups(objective, cameras.x.shape[0])
@@ -445,7 +460,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 
     args = (scene, group_members(events.cameras, events.groups), objective, seen_by_group)
-    integrals = gauss_legendre(_integrand, start, end, args, options.quadrature)  # (m, e)
+    integrand = functools.partial(_integrand, one_thread=_one_thread(events.cameras))
+    integrals = gauss_legendre(integrand, start, end, args, options.quadrature)  # (m, e)
     value = fused_reduce(jnp.sum, integrals, None)
     return value, (used, budget)
 

@@ -1,13 +1,18 @@
 """ocp_jax compiles its programs with `ocp.compiler_options()`, and XLA applies them."""
 
+import functools
 import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+import pytest
 
 import ocp_jax as ocp
+from ocp_jax import scenes
 from ocp_jax._compile import jit
+from ocp_jax._materialize import computed_on_one_thread
 
 
 def _independent_kernels(x):
@@ -47,3 +52,35 @@ def test_visibility_under_a_jit_with_the_options():
     # d/dd of 2 r acos(r / d) = 2 r^2 / (d sqrt(d^2 - r^2)), along the line to the centre
     slope = 2 * 1.5**2 / (4.0 * math.sqrt(4.0**2 - 1.5**2))
     assert abs(float(grad[0, 0]) - slope) <= 1e-10 and abs(float(grad[0, 1])) <= 1e-12
+
+
+def _split_kernels(compiled) -> int:
+    """Kernels XLA's CPU backend splits between threads: those given a non-empty list of
+    partitions (benchmarks/compile_split.py)."""
+    return compiled.as_text().count('"outer_dimension_partitions":["')
+
+
+def _polynomial(t, p):
+    """A kernel XLA judges worth two threads: a polynomial of degree 60 at 2048 points."""
+    return functools.reduce(lambda acc, i: acc * t + p[i % 7], range(60), jnp.zeros_like(t))
+
+
+def test_computed_on_one_thread_is_not_split_between_threads():
+    t, p = jnp.linspace(0.0, 1.0, 2048).reshape(4, 32, 16), jnp.linspace(-1.0, 1.0, 7)
+    plain = jax.jit(_polynomial).lower(t, p).compile()
+    if _split_kernels(plain) == 0:
+        pytest.skip("XLA splits no kernel in a process with one core")
+    once = jax.jit(lambda t, p: computed_on_one_thread(_polynomial, (t, p), p)).lower(t, p)
+    once = once.compile()
+    assert _split_kernels(once) == 0
+    np.testing.assert_array_equal(once(t, p), plain(t, p))
+
+
+def test_a_banana_call_with_one_camera_has_no_split_kernel():
+    """The call the README's speed table times: none of its kernels is split between
+    threads, whose hand-over costs more than the halved work (benchmarks/HISTORY.md)."""
+    banana, camera = scenes.banana(), jnp.array([[1.3, 0.4]])
+    value = lambda c: ocp.visibility(banana, c, ocp.Foreshortened())
+    for program in (value, jax.value_and_grad(value)):
+        compiled = jax.jit(program, compiler_options=ocp.compiler_options()).lower(camera)
+        assert _split_kernels(compiled.compile()) == 0

@@ -25,7 +25,7 @@ import helpers as H
 import ocp_jax as ocp
 from helpers import FS, VL
 from ocp_jax import _conics, _events, _occlusion, _roots, _visibility
-from ocp_jax._materialize import materialize
+from ocp_jax._materialize import computed_on_one_thread, materialize
 from ocp_jax._vec import Vec
 
 J = np.array([[0.0, -1.0], [1.0, 0.0]])  # n = J x' (the library's Eq. 2.3)
@@ -1141,6 +1141,36 @@ def test_materialize_is_the_identity_with_an_identity_derivative():
     fn = lambda x: materialize(Vec(jnp.sin(x), x**2), x).y  # noqa: E731
     np.testing.assert_allclose(jax.jacfwd(fn)(x), np.diag(2 * np.asarray(x)), rtol=1e-15)
     np.testing.assert_allclose(jax.jacrev(fn)(x), np.diag(2 * np.asarray(x)), rtol=1e-15)
+
+
+def test_computed_on_one_thread_is_fn_with_the_derivatives_of_fn():
+    def fn(a, b):
+        return Vec(jnp.sin(a) * b, a**2), a > b, jnp.arange(3) * 2
+
+    a, b = jnp.array([0.5, -2.0, 1.0]), jnp.array(0.7)
+    out = jax.jit(lambda a, b: computed_on_one_thread(fn, (a, b), a))(a, b)
+    for want, got in zip(jax.tree.leaves(fn(a, b)), jax.tree.leaves(out)):
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
+    once = lambda a, b: computed_on_one_thread(fn, (a, b), a)[0].x
+    plain = lambda a, b: fn(a, b)[0].x
+    for argnums in (0, 1, (0, 1)):
+        for jac in (jax.jacfwd, jax.jacrev):
+            for got, want in zip(
+                jax.tree.leaves(jac(once, argnums)(a, b)),
+                jax.tree.leaves(jac(plain, argnums)(a, b)),
+            ):
+                np.testing.assert_allclose(got, want, rtol=1e-15)
+    # a tangent along b only: a is held (its tangent a symbolic zero), so y = a^2 has none
+    _, dy = jax.jvp(lambda b: computed_on_one_thread(fn, (a, b), a)[0].y, (b,), (1.0,))
+    np.testing.assert_array_equal(dy, 0.0)
+    batch = jnp.stack([a, a + 1])
+    np.testing.assert_array_equal(
+        jax.vmap(lambda a: once(a, b))(batch), jax.vmap(lambda a: plain(a, b))(batch)
+    )
+    # a NaN key skips the loop: NaN floats (not values computed from other inputs)
+    key = a.at[0].set(jnp.nan)
+    assert np.isnan(computed_on_one_thread(fn, (a, b), key)[0].x).all()
 
 
 @pytest.mark.parametrize("size", [1, 5, 40])
