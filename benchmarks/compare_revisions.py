@@ -2,6 +2,7 @@
 
     python benchmarks/compare_revisions.py REV [REV ...] [--rounds 3] [--k 1] [--one-core]
         [--xla-flags FLAGS]
+    python benchmarks/compare_revisions.py REV [REV ...] --paired [--calls 1000] [--k 1]
 
 Each revision is checked out in a temporary git worktree and measured in a fresh process
 (its `ocp_jax`; this checkout's evaluate.py: its rows with `--k` cameras, default 1, and
@@ -15,6 +16,15 @@ With --one-core every revision is also measured in a process pinned to one CPU c
 pool by the cores it may use: on several, it runs the independent kernels of a program
 on different threads and splits its largest kernels between them; on one, it runs every
 kernel in turn, with no hand-over between threads.
+
+With --paired the revisions' programs run in one process, call by call in turn: each
+revision compiles its rows' Q and value+grad and the batch in a process of its own and
+hands them over as serialized executables (jax.experimental.serialize_executable), which
+this process loads and times, one call of each revision after the other. The medians and
+the median ratio of each call's time to the first revision's are far less disturbed by
+the machine's drift than separate processes' times (a change of 5% shows). The programs
+are compiled with EQX_ON_ERROR=nan (an error check is a host callback, which cannot be
+serialized), and they take the scene's arrays as arguments, both sides alike.
 
 With --xla-flags every revision is also measured with FLAGS appended to XLA_FLAGS, e.g.
 --xla-flags=--xla_cpu_scheduler_type=CPU_SCHEDULER_TYPE_MEMORY_OPTIMIZED, the option of
@@ -63,6 +73,92 @@ def measure(k: int) -> None:
     print(json.dumps({"ocp_jax": ocp.__file__, **values}))
 
 
+def serialize_programs(k: int) -> None:
+    """Write to stdout, pickled, the compiled programs of the `ocp_jax` on sys.path (run
+    with EQX_ON_ERROR=nan) with their arguments: Q and value+grad of evaluate.py's rows
+    with k cameras, compiled as it recommends, and its batch."""
+    import pickle
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+    from jax.experimental import serialize_executable
+
+    sys.path.insert(0, HERE)
+    from evaluate import banana_batch, cases, jit_options, ocp, value
+
+    def entry(program, options, *args):
+        compiled = jax.jit(program, **options).lower(*args).compile()
+        return serialize_executable.serialize(compiled), jax.tree.map(np.asarray, args)
+
+    programs = {}
+    for name, scene, cameras in cases(np.random.default_rng(0), quick=k == 1):
+        if name in SCENES and cameras.shape[0] == k:
+            leaves, treedef = jax.tree.flatten(scene)
+            leaves = [jnp.asarray(np.asarray(leaf)) for leaf in leaves]  # none weakly typed
+
+            def q(leaves, cameras, treedef=treedef):
+                return value(jax.tree.unflatten(treedef, leaves), cameras)
+
+            programs[f"{name} Q"] = entry(q, jit_options(k), leaves, cameras)
+            grad = jax.value_and_grad(q, 1)
+            programs[f"{name} value+grad"] = entry(grad, jit_options(k), leaves, cameras)
+    per_set, batch = banana_batch(np.random.default_rng(1))
+    programs[BATCH] = entry(jax.vmap(per_set), {}, batch)
+    sys.stdout.buffer.write(pickle.dumps((ocp.__file__, programs)))
+
+
+def paired(trees: dict, k: int, calls: int) -> None:
+    """Print, per program, each revision's median time per call and the median ratio of
+    its calls to the first revision's, the revisions called in turn (see --paired)."""
+    import pickle
+    import statistics
+    import time
+
+    import jax
+    from jax.experimental import serialize_executable
+
+    jax.config.update("jax_enable_x64", True)
+    loaded = {}
+    for revision, tree in trees.items():
+        environment = dict(os.environ, PYTHONPATH=tree, EQX_ON_ERROR="nan")
+        out = subprocess.run(
+            [sys.executable, os.path.abspath(__file__), "--serialize", "--k", str(k)],
+            cwd=tree,
+            env=environment,
+            capture_output=True,
+            check=True,
+        ).stdout
+        module, programs = pickle.loads(out)
+        if not module.startswith(tree):
+            raise RuntimeError(f"the programs were compiled from an ocp_jax outside {tree}")
+        loaded[revision] = {
+            label: (serialize_executable.deserialize_and_load(*executable), jax.device_put(args))
+            for label, (executable, args) in programs.items()
+        }
+        print(f"{revision}: compiled and loaded", file=sys.stderr)
+    first = next(iter(trees))
+    width = max(12, *(len(r) for r in trees))
+    print(f"calls in turn, rows with k = {k} cameras; each cell: median (ratio to {first})")
+    print(f"{'':34s}" + "".join(f"{r:>{width + 16}s}" for r in trees))
+    for label in loaded[first]:
+        n = max(10, calls // 50) if label == BATCH else calls
+        times = {revision: [] for revision in trees}
+        for _ in range(n):
+            for revision, programs in loaded.items():
+                program, args = programs[label]
+                start = time.perf_counter()
+                jax.block_until_ready(program(*args))
+                times[revision].append(time.perf_counter() - start)
+        cells = []
+        for revision, measured in times.items():
+            ratio = statistics.median(t / f for t, f in zip(measured, times[first]))
+            median = statistics.median(measured)
+            shown = f"{1024 / median:.0f} /s" if label == BATCH else f"{1e6 * median:.0f} us"
+            cells.append(f"{shown} ({ratio:.3f})")
+        print(f"{label:34s}" + "".join(f"{c:>{width + 16}s}" for c in cells), flush=True)
+
+
 def pin_to_one_core() -> None:
     """Pins this process (a child, before it starts Python) to its first allowed core."""
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
@@ -100,10 +196,17 @@ def main():
     parser.add_argument(
         "--xla-flags", default="", help="also measure each revision with these XLA_FLAGS"
     )
+    parser.add_argument(
+        "--paired", action="store_true", help="time the revisions call by call in one process"
+    )
+    parser.add_argument("--calls", type=int, default=1000, help="calls per program (--paired)")
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--serialize", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.measure:
         return measure(args.k)
+    if args.serialize:
+        return serialize_programs(args.k)
     if not args.revisions:
         parser.error("name at least one revision, e.g. HEAD~1 HEAD")
     if args.one_core and not hasattr(os, "sched_setaffinity"):
@@ -127,6 +230,8 @@ def main():
                     git + ["worktree", "add", "--detach", "-q", tree, revision], check=True
                 )
                 trees[revision] = tree
+            if args.paired:
+                return paired(trees, args.k, args.calls)
             # (column, worktree, pinned to one core, added XLA flags)
             settings = [("", False, "")]
             if args.one_core:
