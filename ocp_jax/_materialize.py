@@ -52,7 +52,7 @@ def _materialize_jvp(primals, tangents):
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def computed_on_one_thread(fn, args, key):
     """fn(*args), computed once (as by `materialize`), each stack of its outputs by a
-    kernel on one thread.
+    kernel on one thread, except under a `vmap` over more than one element.
 
     XLA's CPU backend splits a kernel between threads where its cost model (flops plus
     ten times the bytes accessed, against 100,000 per thread) says it is worth it. For a
@@ -64,8 +64,9 @@ def computed_on_one_thread(fn, args, key):
     one-trip while loop; fn is evaluated in the loop's body, tied to it by multiplying
     its float inputs by the loop's flag (1 there), so XLA cannot hoist it out. Each stack
     is then one kernel, fn's last operations fused into it (a reduction too); kernels
-    fn launches before them may still be split. Under vmap these kernels are not split
-    either (the vmapped banana batch ran about 6% slower).
+    fn launches before them may still be split. Under a `vmap` of more than one element
+    (a batch of camera sets) the kernels are large and splitting pays: there fn's
+    outputs are only stored (`materialize`).
 
     **Arguments:**
     - `fn`: a function of `args` returning a pytree of arrays; it is differentiated with
@@ -74,6 +75,29 @@ def computed_on_one_thread(fn, args, key):
     - `key`: as in `materialize`. Where its first entry is NaN the loop is skipped and
       the outputs are NaN (False, 0 for booleans, integers).
     """
+    in_place = jax.custom_batching.custom_vmap(functools.partial(_in_place, fn))
+
+    @in_place.def_vmap
+    def batched(axis_size, in_batched, args, key):
+        args_batched, key_batched = in_batched
+        if axis_size == 1:  # (one camera): one thread still, at the level above
+            first = lambda a, b: a[0] if b else a
+            args, key = (
+                jax.tree.map(first, args, args_batched),
+                jax.tree.map(first, key, key_batched),
+            )
+            out = in_place(args, key)
+            return jax.tree.map(lambda a: a[None], out), jax.tree.map(lambda _: True, out)
+        axes = jax.tree.map(lambda b: 0 if b else None, (args_batched, key_batched))
+        stored = lambda args, key: materialize(fn(*args), key)
+        out = jax.vmap(stored, in_axes=axes, axis_size=axis_size)(args, key)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return in_place(args, key)
+
+
+def _in_place(fn, args, key):
+    """fn(*args) written into loop-carried buffers in place (`computed_on_one_thread`)."""
     specs, treedef = jax.tree.flatten(jax.eval_shape(fn, *args))
     groups = _groups(specs)
     # One spare row: a dynamic_update_slice that covers its whole buffer is simplified to

@@ -70,10 +70,16 @@ def test_computed_on_one_thread_is_not_split_between_threads():
     plain = jax.jit(_polynomial).lower(t, p).compile()
     if _split_kernels(plain) == 0:
         pytest.skip("XLA splits no kernel in a process with one core")
-    once = jax.jit(lambda t, p: computed_on_one_thread(_polynomial, (t, p), p)).lower(t, p)
-    once = once.compile()
-    assert _split_kernels(once) == 0
-    np.testing.assert_array_equal(once(t, p), plain(t, p))
+    once = lambda t, p: computed_on_one_thread(_polynomial, (t, p), p)
+    compiled = jax.jit(once).lower(t, p).compile()
+    assert _split_kernels(compiled) == 0
+    np.testing.assert_array_equal(compiled(t, p), plain(t, p))
+    # a vmap over one element (one camera) keeps it on one thread; over several (a batch)
+    # the kernel is larger and split as XLA sees fit
+    for batch, split in ((t[None], False), (jnp.stack([t, 2 * t]), True)):
+        batched = jax.jit(jax.vmap(once, (0, None))).lower(batch, p).compile()
+        assert (_split_kernels(batched) > 0) == split
+        np.testing.assert_array_equal(batched(batch, p), jax.vmap(_polynomial, (0, None))(batch, p))
 
 
 def test_a_banana_call_with_one_camera_has_no_split_kernel():

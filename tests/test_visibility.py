@@ -1164,10 +1164,15 @@ def test_computed_on_one_thread_is_fn_with_the_derivatives_of_fn():
     # a tangent along b only: a is held (its tangent a symbolic zero), so y = a^2 has none
     _, dy = jax.jvp(lambda b: computed_on_one_thread(fn, (a, b), a)[0].y, (b,), (1.0,))
     np.testing.assert_array_equal(dy, 0.0)
-    batch = jnp.stack([a, a + 1])
-    np.testing.assert_array_equal(
-        jax.vmap(lambda a: once(a, b))(batch), jax.vmap(lambda a: plain(a, b))(batch)
-    )
+    for batch in (a[None], jnp.stack([a, a + 1])):  # in place, and stored (a batch)
+        np.testing.assert_array_equal(
+            jax.vmap(lambda a: once(a, b))(batch), jax.vmap(lambda a: plain(a, b))(batch)
+        )
+        np.testing.assert_allclose(
+            jax.vmap(jax.grad(lambda a: once(a, b).sum()))(batch),
+            jax.vmap(jax.grad(lambda a: plain(a, b).sum()))(batch),
+            rtol=1e-15,
+        )
     # a NaN key skips the loop: NaN floats (not values computed from other inputs)
     key = a.at[0].set(jnp.nan)
     assert np.isnan(computed_on_one_thread(fn, (a, b), key)[0].x).all()
