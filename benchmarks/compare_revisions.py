@@ -121,14 +121,7 @@ def paired(trees: dict, k: int, calls: int) -> None:
     jax.config.update("jax_enable_x64", True)
     loaded = {}
     for revision, tree in trees.items():
-        environment = dict(os.environ, PYTHONPATH=tree, EQX_ON_ERROR="nan")
-        out = subprocess.run(
-            [sys.executable, os.path.abspath(__file__), "--serialize", "--k", str(k)],
-            cwd=tree,
-            env=environment,
-            capture_output=True,
-            check=True,
-        ).stdout
+        out = run_in_tree(tree, "--serialize", k, {"EQX_ON_ERROR": "nan"})
         module, programs = pickle.loads(out)
         if not module.startswith(tree):
             raise RuntimeError(f"the programs were compiled from an ocp_jax outside {tree}")
@@ -159,6 +152,19 @@ def paired(trees: dict, k: int, calls: int) -> None:
         print(f"{label:34s}" + "".join(f"{c:>{width + 16}s}" for c in cells), flush=True)
 
 
+def run_in_tree(tree: str, mode: str, k: int, environment: dict, **options) -> bytes:
+    """The output of this script in `mode` (--measure, --serialize) for k cameras, run on
+    the checkout at `tree` in a fresh process (its `ocp_jax` first on the path)."""
+    return subprocess.run(
+        [sys.executable, os.path.abspath(__file__), mode, "--k", str(k)],
+        cwd=tree,
+        env=dict(os.environ, PYTHONPATH=tree, **environment),
+        capture_output=True,
+        check=True,
+        **options,
+    ).stdout
+
+
 def pin_to_one_core() -> None:
     """Pins this process (a child, before it starts Python) to its first allowed core."""
     os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
@@ -167,18 +173,11 @@ def pin_to_one_core() -> None:
 def run_revision(tree: str, one_core: bool, xla_flags: str, k: int) -> dict:
     """The measurements of the checkout at `tree`, from a fresh process (pinned to one
     core if `one_core`, with `xla_flags` appended to XLA_FLAGS)."""
-    environment = dict(os.environ, PYTHONPATH=tree)
+    environment = {}
     if xla_flags:
         environment["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {xla_flags}".strip()
-    out = subprocess.run(
-        [sys.executable, os.path.abspath(__file__), "--measure", "--k", str(k)],
-        cwd=tree,
-        env=environment,
-        capture_output=True,
-        text=True,
-        check=True,
-        preexec_fn=pin_to_one_core if one_core else None,
-    ).stdout
+    pin = pin_to_one_core if one_core else None
+    out = run_in_tree(tree, "--measure", k, environment, preexec_fn=pin).decode()
     values = json.loads(out.strip().splitlines()[-1])
     if not values.pop("ocp_jax").startswith(tree):
         raise RuntimeError(f"the measurement imported an ocp_jax outside {tree}")
