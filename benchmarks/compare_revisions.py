@@ -132,7 +132,10 @@ def paired(trees: dict, k: int, calls: int) -> None:
         print(f"{revision}: compiled and loaded", file=sys.stderr)
     first = next(iter(trees))
     width = max(12, *(len(r) for r in trees))
-    print(f"calls in turn, rows with k = {k} cameras; each cell: median (ratio to {first})")
+    print(
+        f"calls in turn, rows with k = {k} cameras; each cell: median per call (us) or "
+        f"throughput (/s), and the median ratio of its call times to {first}'s"
+    )
     print(f"{'':34s}" + "".join(f"{r:>{width + 16}s}" for r in trees))
     for label in loaded[first]:
         n = max(10, calls // 50) if label == BATCH else calls

@@ -80,7 +80,7 @@ def computed_on_one_thread(fn, args, key):
     @in_place.def_vmap
     def batched(axis_size, in_batched, args, key):
         args_batched, key_batched = in_batched
-        if axis_size == 1:  # (one camera): one thread still, at the level above
+        if axis_size == 1:  # (the engine's vmap over one camera) in place, unbatched
             first = lambda a, b: a[0] if b else a
             args, key = (
                 jax.tree.map(first, args, args_batched),
@@ -111,9 +111,8 @@ def _in_place(fn, args, key):
         first, buffers = carry
         tie = lambda a: a * first.astype(a.dtype) if _is_float_array(a) else a
         stacks = _stacks(jax.tree.leaves(fn(*jax.tree.map(tie, args))), groups)
-        zeros = lambda b: (0,) * b.ndim
         return ~first, [
-            jax.lax.dynamic_update_slice(b, s, zeros(b)) for b, s in zip(buffers, stacks)
+            jax.lax.dynamic_update_slice(b, s, (0,) * b.ndim) for b, s in zip(buffers, stacks)
         ]
 
     buffers = jax.lax.while_loop(lambda c: c[0], body, (_first_trip(key), buffers))[1]

@@ -65,11 +65,21 @@ def _polynomial(t, p):
     return functools.reduce(lambda acc, i: acc * t + p[i % 7], range(60), jnp.zeros_like(t))
 
 
-def test_computed_on_one_thread_is_not_split_between_threads():
-    t, p = jnp.linspace(0.0, 1.0, 2048).reshape(4, 32, 16), jnp.linspace(-1.0, 1.0, 7)
-    plain = jax.jit(_polynomial).lower(t, p).compile()
+_T, _P = jnp.linspace(0.0, 1.0, 2048).reshape(4, 32, 16), jnp.linspace(-1.0, 1.0, 7)
+
+
+@functools.cache
+def _plain_polynomial():
+    """The polynomial compiled as it is: split between threads, except in a process on
+    one core, where XLA splits nothing and the tests below cannot fail (they skip)."""
+    plain = jax.jit(_polynomial).lower(_T, _P).compile()
     if _split_kernels(plain) == 0:
         pytest.skip("XLA splits no kernel in a process with one core")
+    return plain
+
+
+def test_computed_on_one_thread_is_not_split_between_threads():
+    t, p, plain = _T, _P, _plain_polynomial()
     once = lambda t, p: computed_on_one_thread(_polynomial, (t, p), p)
     compiled = jax.jit(once).lower(t, p).compile()
     assert _split_kernels(compiled) == 0
@@ -85,6 +95,7 @@ def test_computed_on_one_thread_is_not_split_between_threads():
 def test_a_banana_call_with_one_camera_has_no_split_kernel():
     """The call the README's speed table times: none of its kernels is split between
     threads, whose hand-over costs more than the halved work (benchmarks/HISTORY.md)."""
+    _plain_polynomial()
     banana, camera = scenes.banana(), jnp.array([[1.3, 0.4]])
     value = lambda c: ocp.visibility(banana, c, ocp.Foreshortened())
     for program in (value, jax.value_and_grad(value)):
