@@ -157,7 +157,16 @@ def grid_brackets(
     h_cells = jnp.broadcast_to(h, f0.shape)
     first = _slot_bounds(f0, f1, d0, d1, h_cells, False)
     second = _slot_bounds(f0, f1, d0, d1, h_cells, True)
-    has_root = jnp.stack([(first[2] * first[3] < 0) | (f0 == 0), second[2] * second[3] < 0], -1)
+    # The two slots of each cell chosen by a select on the slot's index, not stacked: XLA's
+    # CPU backend emits a concatenation as a branch on the index of every element, which
+    # keeps the kernel that computes the mask (and the values it fuses) from being
+    # vectorized; the banana's shadow mask took a fifth of the time in the profiler.
+    slot = jnp.arange(2)
+    has_root = jnp.where(
+        slot == 0,
+        ((first[2] * first[3] < 0) | (f0 == 0))[..., None],
+        (second[2] * second[3] < 0)[..., None],
+    )
     if keep is not None:
         has_root = has_root & keep[..., None]
     if scale is not None:
