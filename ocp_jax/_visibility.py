@@ -62,7 +62,7 @@ from ._objectives import (
 )
 from ._occlusion import facing, in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
-from ._reductions import fused_reduce
+from ._reductions import fused_reduce, sorted_rows
 from ._roots import safe_divisor
 from ._scene import Scene
 from ._smoothed import Smoothed, smoothed_value
@@ -271,7 +271,7 @@ def _camera_partition(
     if pose.range is not None:
         ranges = range_times(scene, camera, pose.range, samples, options.max_range_crossings, iters)
         pieces.append(ranges.t)
-    events = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
+    events = sorted_rows(jnp.concatenate(pieces, 1))
     # The visibility decision carries no derivative. Only the first `tested` intervals
     # are tested; the others are padding at t = 1 (their count is checked in `_failures`).
     fixed = _fixed_slots(scene, events, ranges)
@@ -428,7 +428,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     # (the cameras' events last: in a tie, the stable sort puts them after the other
     # pieces, as the viewability lookup below needs)
     pieces.extend(partitions.events)
-    union = jnp.sort(jnp.concatenate(pieces, 1), axis=1)
+    union = sorted_rows(jnp.concatenate(pieces, 1))
     # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
     # Every camera repeats the corners among its events (zero-length intervals); the
     # closed-form events of conics and the nearest points are kept whole (`_fixed_slots`).

@@ -1,11 +1,12 @@
-"""`fused_reduce` gives jnp's reductions, in one kernel on XLA's CPU backend."""
+"""`fused_reduce` gives jnp's reductions, in one kernel on XLA's CPU backend, and
+`sorted_rows` jnp.sort from two of them."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ocp_jax._reductions import fused_reduce
+from ocp_jax._reductions import fused_reduce, sorted_rows
 
 SHAPES_AND_AXES = [
     ((37,), -1),  # odd, folded onto itself (max, min, any, all) or padded (sum)
@@ -67,3 +68,35 @@ def test_a_long_reduction_is_not_split():
     assert "reduce-window(" in hlo(lambda x: jnp.max(jnp.sin(x), -1))
     folded = hlo(lambda x: fused_reduce(jnp.max, jnp.sin(x)))
     assert "reduce-window(" not in folded and folded.count(" fusion(") == 1
+
+
+SORT_SHAPES = [(1,), (2,), (25,), (3, 44), (2, 4, 25), (2, 64), (2, 65)]  # by counting to 64
+
+
+@pytest.mark.parametrize("shape", SORT_SHAPES)
+def test_sorted_rows_is_jnp_sort(shape):
+    """Values and derivatives of jnp.sort, ties in jnp.sort's (stable) order: events
+    padded with t = 1, repeated values, and -0.0 beside 0.0."""
+    rng = np.random.default_rng(len(shape))
+    x = rng.choice(np.array([-0.0, 0.0, 0.25, 1.0]), size=shape)
+    x = np.where(rng.uniform(size=shape) < 0.5, rng.uniform(-1.0, 1.0, size=shape), x)
+    x = jnp.asarray(x)
+    np.testing.assert_array_equal(sorted_rows(x), jnp.sort(x, axis=-1))
+    for jacobian in (jax.jacfwd, jax.jacrev):
+        np.testing.assert_array_equal(
+            jacobian(sorted_rows)(x), jacobian(lambda a: jnp.sort(a, axis=-1))(x)
+        )
+
+
+def test_short_rows_are_sorted_without_a_sort():
+    """XLA's CPU sort is a kernel of its own that calls a comparator per comparison; the
+    counts of rows of up to 64 entries are two reductions, fused with the elementwise
+    work around them. Longer rows keep the sort."""
+
+    def hlo(fn, n):
+        return jax.jit(fn).lower(jnp.ones((3, n))).compile().as_text()
+
+    assert " sort(" in hlo(lambda x: jnp.sort(jnp.sin(x), axis=-1), 44)
+    counted = hlo(lambda x: sorted_rows(jnp.sin(x)), 44)
+    assert " sort(" not in counted and counted.count(" fusion(") <= 3
+    assert " sort(" in hlo(lambda x: sorted_rows(jnp.sin(x)), 65)
