@@ -293,12 +293,20 @@ def _camera_partition(
 def _integrand(t, args, one_thread: bool):
     """max over the camera groups that see the interval of q(x(t), x'(t), G) ||x'(t)||,
     for t of shape (m, e, g) (the groups' visibility `seen` has shape (G, m, e))."""
-    scene, group, objective, seen = args
+    scene, *rest = args
     if one_thread:
-        x, dx = computed_on_one_thread(lambda s, t: s.components(t)[:2], (scene, t), scene)
-    else:
-        x, dx = materialize(scene.components(t)[:2], scene)
+        # x, x' and q in one kernel: the four coordinates share the curve's powers of t
+        # there, where stored as one stack (a concatenation, a branch per element) each
+        # would compute them again, unvectorized (the banana's integrand took a sixth of
+        # the time in the profiler).
+        integrand = lambda scene, t, rest: _integrand_at(*scene.components(t)[:2], *rest)
+        return computed_on_one_thread(integrand, (scene, t, rest), scene)
+    x, dx = materialize(scene.components(t)[:2], scene)
+    return _integrand_at(x, dx, *rest)
 
+
+def _integrand_at(x: Vec, dx: Vec, group, objective, seen):
+    """The integrand from the curve's points x and derivatives x' (see `_integrand`)."""
     # A maximum of G terms, not a reduction over a stacked (G, m, e, g) array: XLA's CPU
     # backend runs such a reduction over a short leading axis (and those of its
     # derivative) as kernels of their own, several times slower than the elementwise
