@@ -301,12 +301,15 @@ def _integrand(t, args, one_thread: bool):
         # the time in the profiler).
         integrand = lambda scene, t, rest: _integrand_at(*scene.components(t)[:2], *rest)
         return computed_on_one_thread(integrand, (scene, t, rest), scene)
+    # With several cameras x and x' are stored (the integrand computed whole and stored
+    # instead made value+grad with 4 cameras 1.03-1.56x slower, benchmarks/HISTORY.md).
     x, dx = materialize(scene.components(t)[:2], scene)
     return _integrand_at(x, dx, *rest)
 
 
 def _integrand_at(x: Vec, dx: Vec, group, objective, seen):
     """The integrand from the curve's points x and derivatives x' (see `_integrand`)."""
+
     # A maximum of G terms, not a reduction over a stacked (G, m, e, g) array: XLA's CPU
     # backend runs such a reduction over a short leading axis (and those of its
     # derivative) as kernels of their own, several times slower than the elementwise
