@@ -12,8 +12,9 @@ free space, at least `--clearance` from every curve. For `--scenes` random scene
 and number of cameras k (1, 2, 3), this prints the largest relative difference of
 `VisibleLength` and `Foreshortened` Q to tests/reference.py (events on a 4096-cell grid,
 adaptive quadrature to 1e-14) and the errors the engine raised; with `--gradients`, also
-of the gradient of Foreshortened Q to central differences (step 1e-6) in the cameras and
-in one random direction of all the scene's parameters.
+of the gradient of Foreshortened Q to central differences (step 1e-6), |g - g_fd| / |g_fd|
+over all the cameras' coordinates, and along one random direction of all the scene's
+parameters.
 
 `--scale` and `--offset` move the scenes and cameras (x -> scale x + offset); the
 reference is evaluated on the unmoved scene (Q moves with it and scales with length):
@@ -34,7 +35,7 @@ jax.config.update("jax_enable_x64", True)
 import ocp_jax as ocp
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-from helpers import to_reference
+from helpers import relative_error, to_reference
 from reference import reference_visibility
 
 MIXES = {
@@ -105,9 +106,9 @@ def polylines(scene: ocp.Scene) -> list[np.ndarray]:
     return [np.asarray(c(t)) for c in scene.curves]
 
 
-def random_scene(rng, kinds: list[str]) -> ocp.Scene:
+def random_scene(rng, kinds: list[str]) -> tuple[ocp.Scene, list[np.ndarray]]:
     """The curves of `kinds` on a jittered grid (a large first curve at the centre, the
-    others around it), drawn again until no two touch or nest."""
+    others around it), drawn again until no two touch or nest; with their polylines."""
     while True:
         if kinds[0].endswith("_large"):
             radius, angle = rng.uniform(3.5, 5.5, len(kinds)), rng.uniform(0, 2 * np.pi, len(kinds))
@@ -128,12 +129,12 @@ def random_scene(rng, kinds: list[str]) -> ocp.Scene:
             for b in lines[i + 1 :]
         )
         if apart:
-            return scene
+            return scene, lines
 
 
-def random_cameras(rng, scene: ocp.Scene, k: int, clearance: float) -> np.ndarray:
-    """k cameras in free space near the scene, each at least `clearance` from every curve."""
-    lines = polylines(scene)
+def random_cameras(rng, lines: list[np.ndarray], k: int, clearance: float) -> np.ndarray:
+    """k cameras in free space near the scene's polylines, each at least `clearance` from
+    every curve."""
     everything = np.concatenate(lines)
     low, high = everything.min(0) - 1.5, everything.max(0) + 1.5
     cameras = []
@@ -171,10 +172,6 @@ foreshortened = jax.jit(lambda s, c: ocp.visibility(s, c, FS))
 gradient = jax.jit(jax.grad(lambda s, c: ocp.visibility(s, c, FS), argnums=(0, 1)))
 
 
-def relative(a, b) -> float:
-    return float(np.max(np.abs(np.asarray(a) - np.asarray(b))) / max(np.max(np.abs(b)), 1e-300))
-
-
 def gradient_errors(rng, scene, cameras, step: float = 1e-6) -> tuple[float, float]:
     """Relative error of the gradient of Foreshortened Q against central differences: in
     the cameras (every coordinate) and along one random direction of the scene."""
@@ -191,7 +188,7 @@ def gradient_errors(rng, scene, cameras, step: float = 1e-6) -> tuple[float, flo
     )
     along = central((shifted(1), cameras), (shifted(-1), cameras))
     exact = sum(jnp.vdot(g, d) for g, d in zip(jax.tree.leaves(scene_grad), direction))
-    return relative(camera_grad, finite), relative(exact, along)
+    return relative_error(camera_grad, finite), relative_error(exact, along)
 
 
 def main():
@@ -217,8 +214,8 @@ def main():
             errors, raised = [], 0
             for j in range(args.scenes):
                 rng = np.random.default_rng([args.seed, m, k, j])
-                scene = random_scene(rng, kinds)
-                cameras = random_cameras(rng, scene, k, args.clearance)
+                scene, lines = random_scene(rng, kinds)
+                cameras = random_cameras(rng, lines, k, args.clearance)
                 engine_scene, engine_cameras = moved(scene, cameras, args.scale, args.offset)
                 try:
                     engine = values(engine_scene, engine_cameras)
@@ -228,7 +225,9 @@ def main():
                     continue
                 curves = to_reference(scene)
                 row = [
-                    relative(engine[i], args.scale * reference_visibility(curves, cameras, name))
+                    relative_error(
+                        engine[i], args.scale * reference_visibility(curves, cameras, name)
+                    )
                     for i, name in enumerate(("visible_length", "foreshortened"))
                 ]
                 if args.gradients:
