@@ -172,6 +172,13 @@ foreshortened = jax.jit(lambda s, c: ocp.visibility(s, c, FS))
 gradient = jax.jit(jax.grad(lambda s, c: ocp.visibility(s, c, FS), argnums=(0, 1)))
 
 
+def engine_message(error: Exception) -> str:
+    """The engine's message in an error (under `jax.jit` it is a line of the runtime
+    error's text, after the traceback of the callback that raised it)."""
+    lines = str(error).splitlines()
+    return next((line[line.index("ocp_jax:") :] for line in lines if "ocp_jax:" in line), lines[0])
+
+
 def gradient_errors(rng, scene, cameras, step: float = 1e-6) -> tuple[float, float]:
     """Relative error of the gradient of Foreshortened Q against central differences: in
     the cameras (every coordinate) and along one random direction of the scene."""
@@ -221,7 +228,7 @@ def main():
                     engine = values(engine_scene, engine_cameras)
                 except (ValueError, RuntimeError) as error:  # raised by the engine: shown
                     raised += 1
-                    print(f"  {label}, k={k}, scene {j}: {str(error).splitlines()[0]}")
+                    print(f"  {label}, k={k}, scene {j}: {engine_message(error)}")
                     continue
                 curves = to_reference(scene)
                 row = [
