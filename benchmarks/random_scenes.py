@@ -1,7 +1,7 @@
 """Q and its gradient on random scenes, against the NumPy reference and finite differences.
 
     python benchmarks/random_scenes.py [--scenes 4] [--seed 0] [--scale 1] [--offset 0]
-        [--clearance 0.12] [--gradients]
+        [--clearance 0.12] [--gradients] [--float32]
 
 Scenes the engine was not tuned on: six mixes of curve types (periodic B-splines of
 degree 2, 3 and 4, closed C2 Beziers, circles, ellipses, polygons, rounded rectangles),
@@ -16,6 +16,11 @@ of the gradient of Foreshortened Q to central differences (step 1e-6), |g - g_fd
 over all the cameras' coordinates, and along one random direction of all the scene's
 parameters.
 
+With `--float32` the engine computes in float32 (the scene and cameras cast after they
+are drawn); Q is compared with the reference as above, and the gradient with the float64
+engine's (central differences resolve nothing in float32), in the cameras and in all of
+the scene's parameters.
+
 `--scale` and `--offset` move the scenes and cameras (x -> scale x + offset); the
 reference is evaluated on the unmoved scene (Q moves with it and scales with length):
 its tolerances are absolute, and it does not finish on a scene 1e4 from the origin.
@@ -28,6 +33,7 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 from matplotlib.path import Path
 
 jax.config.update("jax_enable_x64", True)
@@ -198,6 +204,24 @@ def gradient_errors(rng, scene, cameras, step: float = 1e-6) -> tuple[float, flo
     return relative_error(camera_grad, finite), relative_error(exact, along)
 
 
+def float32_gradient_errors(scene, cameras) -> tuple[float, float]:
+    """Relative error of the float32 gradient of Foreshortened Q against the float64
+    engine's: in the cameras and in all of the scene's parameters."""
+    (scene_exact, cameras_exact), (scene_single, cameras_single) = (
+        gradient(scene, cameras),
+        gradient(*to_float32((scene, cameras))),
+    )
+    flat = lambda tree: ravel_pytree(tree)[0]
+    return (
+        relative_error(cameras_single, cameras_exact),
+        relative_error(flat(scene_single), flat(scene_exact)),
+    )
+
+
+def to_float32(tree):
+    return jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), tree)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=4, help="random scenes per mix and k")
@@ -206,9 +230,11 @@ def main():
     parser.add_argument("--offset", type=float, default=0.0)
     parser.add_argument("--clearance", type=float, default=0.12)
     parser.add_argument("--gradients", action="store_true")
+    parser.add_argument("--float32", action="store_true", help="the engine in float32")
     args = parser.parse_args()
+    dtype, precision = ("float32", to_float32) if args.float32 else ("float64", lambda t: t)
     print(
-        f"JAX {jax.__version__}, float64; {args.scenes} scenes per row, seed {args.seed}, "
+        f"JAX {jax.__version__}, {dtype}; {args.scenes} scenes per row, seed {args.seed}, "
         f"x -> {args.scale:g} x + {args.offset:g}, cameras >= {args.clearance} from curves"
     )
     header = f"{'mix':28s} {'k':>2s} {'VisibleLength':>14s} {'Foreshortened':>14s}"
@@ -225,7 +251,7 @@ def main():
                 cameras = random_cameras(rng, lines, k, args.clearance)
                 engine_scene, engine_cameras = moved(scene, cameras, args.scale, args.offset)
                 try:
-                    engine = values(engine_scene, engine_cameras)
+                    engine = values(*precision((engine_scene, engine_cameras)))
                 except (ValueError, RuntimeError) as error:  # raised by the engine: shown
                     raised += 1
                     print(f"  {label}, k={k}, scene {j}: {engine_message(error)}")
@@ -237,7 +263,9 @@ def main():
                     )
                     for i, name in enumerate(("visible_length", "foreshortened"))
                 ]
-                if args.gradients:
+                if args.gradients and args.float32:
+                    row += float32_gradient_errors(engine_scene, engine_cameras)
+                elif args.gradients:
                     row += gradient_errors(rng, engine_scene, engine_cameras)
                 errors.append(row)
             jax.clear_caches()  # (kept, every row's programs exhausted the memory for machine code)
