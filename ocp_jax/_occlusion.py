@@ -49,25 +49,63 @@ def orientation(samples: Samples) -> Float[Array, " m"]:
     return jnp.sign(fused_reduce(jnp.sum, x.x[:, :-1] * x.y[:, 1:] - x.y[:, :-1] * x.x[:, 1:]))
 
 
-def _crosses_segment(g, dg, depth, reach, h):
+def _crosses_segment(g, dg, h, in_segment):
     """Per cell of a grid: does the curve cross the open segment from the camera to the
-    query point? `g` (sign: side of the line of sight), `dg` its t-derivative, `depth`
-    = (x - C) . d along the line of sight, `reach` = |d|^2 (the query point's depth).
+    query point? `g` (sign: side of the line of sight), `dg` its t-derivative;
+    `in_segment(a, b, single)`: whether the curve's point at the fraction a / b of each
+    cell lies between the camera and the query point, `single` where it is the one root
+    of g in the cell (`linear_depth`, `deflated_depth`).
 
-    A sign change of g is a crossing at the linearly interpolated depth, tested without
-    division: D_c = (g0 D1 - g1 D0) / (g0 - g1) lies in (0, reach). A pair of crossings
-    inside one cell (a grazing occluder) shows as the cubic Hermite interpolant of (g, g')
-    changing sign at its extremum."""
+    A sign change of g is a crossing at the fraction g0 / (g0 - g1) of the cell. A pair of
+    crossings inside one cell (a grazing occluder) shows as the cubic Hermite interpolant
+    of (g, g') changing sign at its extremum, tested there."""
     g0, g1 = cell_ends(g)
-    d0, d1 = depth[..., :-1], depth[..., 1:]
     crossing = (g0 >= 0) != (g1 >= 0)
-    num, den = g0 * d1 - g1 * d0, g0 - g1
-    inside = (num * den > 0) & (jnp.abs(num) < reach * jnp.abs(den))
     h = jnp.broadcast_to(h, g0.shape)
     split, peak, turning = hermite_extremum(g0, g1, *cell_ends(dg), h)
     pair = turning & ~crossing & (g0 * peak < 0)
-    d_pair = d0 + split * (d1 - d0)
-    return (crossing & inside) | (pair & (d_pair > 0) & (d_pair < reach))
+    return (crossing & in_segment(g0, g0 - g1, True)) | (pair & in_segment(split, 1.0, False))
+
+
+def linear_depth(depth, reach):
+    """`in_segment` of `_crosses_segment` for the depth D = (x - C) . d along the line of
+    sight, interpolated linearly in each cell: D in (0, reach = |d|^2), tested without
+    division (D b = D0 b + a (D1 - D0) for the fraction a / b)."""
+    d0, d1 = depth[..., :-1], depth[..., 1:]
+
+    def in_segment(a, b, single):
+        scaled = d0 * b + a * (d1 - d0)
+        return (scaled * b > 0) & (jnp.abs(scaled) < reach * jnp.abs(b))
+
+    return in_segment
+
+
+def deflated_depth(excess, offset, reach, r, r_mid):
+    """`in_segment` of `_crosses_segment` on the query point's own curve, where the depth
+    is written D - reach = (x(s) - m) . d = e(s) (s - t_m).
+
+    Interpolating D linearly errs by O(h^2) D'', more than the margin D - reach of the
+    crossing just beyond a query point near a tangency (which was then taken for an
+    occluder). Here the crossing lies between the camera and m iff e and s - t_m have
+    opposite signs there: e (smooth through t_m, -> x'(t_m) . d) and the offset s - t_m
+    are interpolated linearly. In the cell around t_m the side of a single crossing is
+    instead the side where the deflated r changes sign (r(t_m) = `r_mid` is known
+    exactly), not that of the interpolated root. Tested without division: for the
+    fraction a / b, (D - reach) b^2 = (e0 b + a (e1 - e0)) (o0 b + a (o1 - o0))."""
+    e0, e1 = excess[..., :-1], excess[..., 1:]
+    o0, o1 = offset[..., :-1], offset[..., 1:]
+    around = (o0 < 0) & (o1 > 0)
+    after = r[..., :-1] * r_mid > 0
+
+    def in_segment(a, b, single):
+        excess_b = e0 * b + a * (e1 - e0)
+        beyond = excess_b * (o0 * b + a * (o1 - o0))
+        ahead = beyond < 0
+        if single:
+            ahead = jnp.where(around, (excess_b * b > 0) != after, ahead)
+        return ahead & (reach * b * b + beyond > 0)
+
+    return in_segment
 
 
 def facing(camera: Vec, sense: Float[Array, " m"], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "m q"]:
@@ -101,29 +139,34 @@ def visible_points(
     sight_j = sight.map(lambda a: a[other][:, None])
     dg_j = samples.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[other][:, None])))
     others = _crosses_segment(
-        cross(dd, sight_j), dg_j, dot(dd, sight_j), reach[:, :, None, None], h
+        cross(dd, sight_j), dg_j, h, linear_depth(dot(dd, sight_j), reach[:, :, None, None])
     )
     blocked = fused_reduce(jnp.any, others, (-1, -2))
 
     # The query's own curve: deflate the trivial root at t_mid, r = g / (t - t_mid),
-    # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 there.
+    # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 there; and the
+    # depth's excess over the query point's, e = (D - reach) / (t - t_mid) -> x'(t_mid) . d.
     dq = d.map(lambda a: a[:, :, None])
     own_sight = sight.map(lambda a: a[:, None])
     g = cross(dq, own_sight)  # (m, q, N + 1)
     offset = samples.t[None, None] - t_mid[:, :, None]
     near = jnp.abs(offset) <= 1e4 * jnp.finfo(offset.dtype).eps
-    offset = jnp.where(near, 1.0, offset)
-    r = jnp.where(near, cross(d, dx_mid)[:, :, None], g / offset)
+    divisor = jnp.where(near, 1.0, offset)
+    r_mid = cross(d, dx_mid)[:, :, None]
+    r = jnp.where(near, r_mid, g / divisor)
+    reach_q = reach[:, :, None]
+    excess = jnp.where(near, dot(d, dx_mid)[:, :, None], (dot(dq, own_sight) - reach_q) / divisor)
 
     def slopes_at(dx, _):
         dg = cross(dq, dx.map(lambda a: a[:, None]))
-        return jnp.where(near, 0.0, (dg - r) / offset)
+        return jnp.where(near, 0.0, (dg - r) / divisor)
 
     dr = samples.at_nodes(slopes_at)
 
-    def crosses_own(*args):
-        return fused_reduce(jnp.any, _crosses_segment(*args))
+    def crosses_own(r, dr, h, excess, offset, reach, r_mid):
+        in_segment = deflated_depth(excess, offset, reach, r, r_mid)
+        return fused_reduce(jnp.any, _crosses_segment(r, dr, h, in_segment))
 
-    args = (r, dr, dot(dq, own_sight), reach[:, :, None], h)
+    args = (r, dr, h, excess, offset, reach_q, r_mid)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
     return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~own
