@@ -13,7 +13,9 @@ one test at its midpoint m = x_i(t_m) decides it:
 3. **Own curve.** On curve i itself, g has its trivial root at t_m. There the test uses
    the deflated r(s) = g(s) / (s - t_m) (r(t_m) = g'(t_m) != 0 for a facing point), whose
    roots are exactly the other crossings, so no window around t_m is excluded and a grid
-   node at (or next to) t_m needs no special case.
+   node at (or next to) t_m needs no special case. Their depths are deflated too
+   (`deflated_depth`), so that a crossing just beyond a point near a tangency is not
+   taken for one in front of it.
 
 The test is a decision only: it carries no derivative (the derivatives of Q come from the
 event times and the integrand).
