@@ -10,10 +10,12 @@ one test at its midpoint m = x_i(t_m) decides it:
    g(s) = cross(d, x_j(s) - C) with depth lambda(s) = (x_j(s) - C) . d / |d|^2 in (0, 1).
    They are read off the grid like the event roots: sign changes of g, and near-grazing
    pairs of crossings inside one cell from the cubic Hermite interpolant of (g, g').
-3. **Own curve.** On curve i itself, g has its trivial root at t_m. There the test uses
-   the deflated r(s) = g(s) / (s - t_m) (r(t_m) = g'(t_m) != 0 for a facing point), whose
-   roots are exactly the other crossings, so no window around t_m is excluded and a grid
-   node at (or next to) t_m needs no special case. Their depths are deflated too
+3. **Own curve.** On curve i itself, g has its trivial root at t_m, and on the grid
+   [0, 1] of a closed curve its periodic images t_m -+ 1 too. There the test uses the
+   deflated r(s) = g(s) / p(s), p = u (1 - u) (1 + u) with u = s - t_m (r(t_m) = g'(t_m)
+   != 0 for a facing point), whose roots are exactly the other crossings, so no window
+   around t_m (or the seam) is excluded and a grid node at (or next to) t_m needs no
+   special case. Their depths are deflated too
    (`deflated_depth`), so that a crossing just beyond a point near a tangency is not
    taken for one in front of it.
 
@@ -82,20 +84,21 @@ def linear_depth(depth, reach):
     return in_segment
 
 
-def deflated_depth(excess, offset, reach, r, r_mid):
+def deflated_depth(excess, deflator, reach, r, r_mid):
     """`in_segment` of `_crosses_segment` on the query point's own curve, where the depth
-    is written D - reach = (x(s) - m) . d = e(s) (s - t_m).
+    is written D - reach = (x(s) - m) . d = e(s) p(s), with the deflator p of the trivial
+    root (p = u (1 - u) (1 + u), u = s - t_m: negative before t_m, positive after it).
 
     Interpolating D linearly errs by O(h^2) D'', more than the margin D - reach of the
     crossing just beyond a query point near a tangency (which was then taken for an
-    occluder). Here the crossing lies between the camera and m iff e and s - t_m have
-    opposite signs there: e (smooth through t_m, -> x'(t_m) . d) and the offset s - t_m
-    are interpolated linearly. In the cell around t_m the side of a single crossing is
-    instead the side where the deflated r changes sign (r(t_m) = `r_mid` is known
-    exactly), not that of the interpolated root. Tested without division: for the
-    fraction a / b, (D - reach) b^2 = (e0 b + a (e1 - e0)) (o0 b + a (o1 - o0))."""
+    occluder). Here the crossing lies between the camera and m iff e and p have
+    opposite signs there: e (smooth through t_m, -> x'(t_m) . d) and p are interpolated
+    linearly. In the cell around t_m the side of a single crossing is instead the side
+    where the deflated r changes sign (r(t_m) = `r_mid` is known exactly), not that of
+    the interpolated root. Tested without division: for the fraction a / b,
+    (D - reach) b^2 = (e0 b + a (e1 - e0)) (o0 b + a (o1 - o0)), o = p at the nodes."""
     e0, e1 = excess[..., :-1], excess[..., 1:]
-    o0, o1 = offset[..., :-1], offset[..., 1:]
+    o0, o1 = deflator[..., :-1], deflator[..., 1:]
     around = (o0 < 0) & (o1 > 0)
     after = r[..., :-1] * r_mid > 0
 
@@ -145,30 +148,40 @@ def visible_points(
     )
     blocked = fused_reduce(jnp.any, others, (-1, -2))
 
-    # The query's own curve: deflate the trivial root at t_mid, r = g / (t - t_mid),
-    # r' = (g' - r) / (t - t_mid), with the limits r = g'(t_mid), r' = 0 there; and the
-    # depth's excess over the query point's, e = (D - reach) / (t - t_mid) -> x'(t_mid) . d.
+    # The query's own curve: deflate the trivial root at t_mid and its periodic images
+    # t_mid -+ 1 (the grid's ends are one point of the curve, and an image next to one
+    # would leave g a root there that rounding puts on either side of it), with
+    # p = u (1 - u) (1 + u), u = t - t_mid: r = g / p, r' = (g' - r p') / p, with the
+    # limits r = g'(t_mid) / p', r' = 0 at the roots of p; and the depth's excess over
+    # the query point's, e = (D - reach) / p -> x'(t_mid) . d / p' there.
     dq = d.map(lambda a: a[:, :, None])
     own_sight = sight.map(lambda a: a[:, None])
     g = cross(dq, own_sight)  # (m, q, N + 1)
-    offset = samples.t[None, None] - t_mid[:, :, None]
-    near = jnp.abs(offset) <= 1e4 * jnp.finfo(offset.dtype).eps
-    divisor = jnp.where(near, 1.0, offset)
+    u = samples.t[None, None] - t_mid[:, :, None]
+    deflator = u * (1.0 - u) * (1.0 + u)
+    deflator_slope = 1.0 - 3.0 * u * u
+    tolerance = 1e4 * jnp.finfo(u.dtype).eps
+    near = (jnp.abs(u) <= tolerance) | (jnp.abs(1.0 - jnp.abs(u)) <= tolerance)
+    divisor = jnp.where(near, 1.0, deflator)
     r_mid = cross(d, dx_mid)[:, :, None]
-    r = jnp.where(near, r_mid, g / divisor)
+    r = jnp.where(near, r_mid / deflator_slope, g / divisor)
     reach_q = reach[:, :, None]
-    excess = jnp.where(near, dot(d, dx_mid)[:, :, None], (dot(dq, own_sight) - reach_q) / divisor)
+    excess = jnp.where(
+        near,
+        dot(d, dx_mid)[:, :, None] / deflator_slope,
+        (dot(dq, own_sight) - reach_q) / divisor,
+    )
 
     def slopes_at(dx, _):
         dg = cross(dq, dx.map(lambda a: a[:, None]))
-        return jnp.where(near, 0.0, (dg - r) / divisor)
+        return jnp.where(near, 0.0, (dg - r * deflator_slope) / divisor)
 
     dr = samples.at_nodes(slopes_at)
 
-    def crosses_own(r, dr, h, excess, offset, reach, r_mid):
-        in_segment = deflated_depth(excess, offset, reach, r, r_mid)
+    def crosses_own(r, dr, h, excess, deflator, reach, r_mid):
+        in_segment = deflated_depth(excess, deflator, reach, r, r_mid)
         return fused_reduce(jnp.any, _crosses_segment(r, dr, h, in_segment))
 
-    args = (r, dr, h, excess, offset, reach_q, r_mid)
+    args = (r, dr, h, excess, deflator, reach_q, r_mid)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
     return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~own
