@@ -230,8 +230,52 @@ def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
     return centre, fused_reduce(jnp.max, reach, 1) + fused_reduce(jnp.max, step, 1)
 
 
+class GrazingProbes(NamedTuple):
+    """The camera's tangency points on every curve, arrays (m, r): where a line of sight
+    from the camera may graze the curve (`grazing_probes`)."""
+
+    t: Float[Array, "m r"]
+    valid: Bool[Array, "m r"]
+    cell: Int[Array, "m r"]  # the grid cell that holds t
+    sight: Vec  # x_j(T) - C
+    start: Vec  # x_j - C at the cell's start node
+    end: Vec  # x_j - C at the cell's end node
+
+
+def grazing_probes(
+    camera: Vec, samples: Samples, tangents: Roots, points: RaySources
+) -> GrazingProbes:
+    """Probes for crossings that the grid cannot resolve, from the camera's tangency
+    times and their `tangency_points` (no derivative: they only decide).
+
+    Where a line of sight grazes a curve, its two crossings can be closer together than
+    the cubic Hermite interpolant of g = cross(d, x_j(s) - C) on the grid resolves (on
+    the circle of benchmarks/grazing.py, pairs a tenth of a cell apart). Seen from C, the angle of x_j(s) - C is extremal at the tangency times T
+    (where cross(x_j', x_j - C) = 0, Eq. 5.21), so sign g (that of the sine of the angle
+    from d) is extreme there: two crossings inside a cell, however close together,
+    straddle a tangency point, and g there has the sign opposite to both ends of the
+    cell (`grid_brackets`' probes, and `_occlusion._grazing`)."""
+    camera, tangents, point = jax.lax.stop_gradient(
+        (camera, tangents, points.point.map(lambda a: a.reshape(tangents.t.shape)))
+    )
+    cells = samples.t.shape[0] - 1
+    cell = jnp.clip(jnp.floor(tangents.t * cells).astype(jnp.int32), 0, cells - 1)
+    rows = jnp.arange(cell.shape[0])[:, None]
+
+    def node(offset):
+        return sub(samples.x.map(lambda a: a[rows, cell + offset]), camera)
+
+    return GrazingProbes(tangents.t, tangents.valid, cell, sub(point, camera), node(0), node(1))
+
+
 def shadow_times(
-    scene, camera: Vec, samples: Samples, tangency: RaySources, budget: int, iterations: int
+    scene,
+    camera: Vec,
+    samples: Samples,
+    tangency: RaySources,
+    probes: GrazingProbes,
+    budget: int,
+    iterations: int,
 ) -> Roots:
     """Shadow times on every curve of the rays from `camera` through the ray sources,
     keeping hits beyond each source's `depth` (beyond a tangency point, in front of the
@@ -246,6 +290,10 @@ def shadow_times(
     r(s) = g(s) / u^2 with u = s - T wrapped to [-1/2, 1/2) (r(T) = g''(T) / 2), so that
     only the genuine crossings remain, with no window around T excluded. A corner's ray
     has a simple root at its corner T, a grid node, where g is set to exactly 0.
+
+    Where a ray grazes a curve (near a bitangent line), its two crossings straddle the
+    camera's tangency point on that curve (`grazing_probes`): g there, at the first
+    probe of each cell, splits the cell when it has the sign opposite to both ends.
     """
     c0 = jax.lax.stop_gradient(camera)
     # Computed once (see `materialize`), not in every grid element of the search.
@@ -298,16 +346,33 @@ def shadow_times(
 
     slopes = samples.at_nodes(slopes_at)
 
+    # The first probe of each cell of every curve, g of every ray there (deflated as
+    # above on the ray's own curve, where its own tangency point is no probe).
+    cells = samples.t.shape[0] - 1
+    in_cell = probes.valid[:, None] & (probes.cell[:, None] == jnp.arange(cells)[None, :, None])
+    first = jnp.argmax(in_cell, -1)  # (m, cells)
+    probe_t = jnp.take_along_axis(probes.t, first, -1)[:, None]  # (m, 1, cells)
+    probe_sight = probes.sight.map(lambda a: jnp.take_along_axis(a, first, -1)[:, None])
+    probe_u = probe_t - take(tangency.t)
+    probe_u = probe_u - jnp.round(probe_u)
+    probe_near = jnp.abs(probe_u) <= 1e4 * jnp.finfo(u.dtype).eps
+    probe_values = cross(ray_grid, probe_sight)
+    probe_values = jnp.where(
+        tangent, probe_values / jnp.where(probe_near, 1.0, probe_u) ** 2, probe_values
+    )
+    present = jnp.any(in_cell, -1)[:, None] & ~(tangent & probe_near)
+    fraction = probe_t * cells - jnp.arange(cells)[None, None]
+
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
     start = take(tangency.depth)
     beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
     # Rays along a straight edge make F vanish on it up to rounding (deflated values
     # on a tangency point's own curve are exempt).
     scale = jnp.where(tangent, 0.0, norm(ray_grid) * norm(sight))
+    probe = tuple(jnp.broadcast_arrays(fraction, probe_values, present))
     brackets = grid_brackets(
-        samples.t, values, slopes, budget, beyond & chosen[..., None], scale=scale
+        samples.t, values, slopes, budget, beyond & chosen[..., None], scale, probe
     )
-    cells = samples.t.shape[0] - 1
     line = brackets.source // (2 * cells)  # (m, r)
     if pick is not None:
         line = jnp.take_along_axis(pick, line, 1)

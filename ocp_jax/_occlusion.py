@@ -18,16 +18,20 @@ one test at its midpoint m = x_i(t_m) decides it:
    special case. Their depths are deflated too
    (`deflated_depth`), so that a crossing just beyond a point near a tangency is not
    taken for one in front of it.
+4. **Grazing.** A pair of crossings too close together for the interpolant, where the
+   line of sight grazes a curve, straddles the camera's tangency point on that curve:
+   g there has the sign opposite to both ends of its cell (`_events.grazing_probes`).
 
 The test is a decision only: it carries no derivative (the derivatives of Q come from the
 event times and the integrand).
 """
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._events import Samples
+from ._events import GrazingProbes, Samples
 from ._materialize import computed_on_one_thread
 from ._reductions import fused_reduce
 from ._roots import cell_ends, hermite_extremum
@@ -113,6 +117,13 @@ def deflated_depth(excess, deflator, reach, r, r_mid):
     return in_segment
 
 
+def _grazing(value, start, end, depth, reach):
+    """Probes whose line-of-sight function (`value`) has the sign opposite to both ends
+    of the probe's cell (two crossings in it, one on either side), with the probe's depth
+    D = (x - C) . d inside the segment (0, reach = |d|^2)."""
+    return (value * start < 0) & (value * end < 0) & (depth > 0) & (depth < reach)
+
+
 def facing(camera: Vec, sense: Float[Array, " m"], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "m q"]:
     """Whether the free side of each query point (arrays (m, q) on every curve i) faces
     the camera; a point facing away is hidden by its own object."""
@@ -126,10 +137,12 @@ def visible_points(
     t_mid: Float[Array, "m q"],
     x_mid: Vec,
     dx_mid: Vec,
+    probes: GrazingProbes,
     one_thread: bool = False,
 ) -> Bool[Array, "m q"]:
     """chi(t_mid[i, k], camera) for query points x_mid, x'_mid (arrays (m, q)) on every
-    curve i; with `one_thread`, the test on the own curve is one kernel on one thread
+    curve i, with the camera's tangency points as `probes` of grazing lines of sight;
+    with `one_thread`, the test on the own curve is one kernel on one thread
     (`computed_on_one_thread`)."""
     m = t_mid.shape[0]
     h = jnp.diff(samples.t)
@@ -147,6 +160,19 @@ def visible_points(
         cross(dd, sight_j), dg_j, h, linear_depth(dot(dd, sight_j), reach[:, :, None, None])
     )
     blocked = fused_reduce(jnp.any, others, (-1, -2))
+    on_other = jax.tree.map(lambda a: a[other][:, None], probes)  # (m, 1, m - 1, r)
+    blocked = blocked | fused_reduce(
+        jnp.any,
+        on_other.valid
+        & _grazing(
+            cross(dd, on_other.sight),
+            cross(dd, on_other.start),
+            cross(dd, on_other.end),
+            dot(dd, on_other.sight),
+            reach[:, :, None, None],
+        ),
+        (-1, -2),
+    )
 
     # The query's own curve: deflate the trivial root at t_mid and its periodic images
     # t_mid -+ 1 (the grid's ends are one point of the curve, and an image next to one
@@ -184,4 +210,25 @@ def visible_points(
 
     args = (r, dr, h, excess, deflator, reach_q, r_mid)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
+
+    # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)
+    # and r at the ends of their cells; not in the query point's own cell, where r is
+    # deflated and the side of a crossing is decided as above.
+    on_own = jax.tree.map(lambda a: a[:, None], probes)  # (m, 1, r)
+    u = on_own.t - t_mid[:, :, None]
+    cells = samples.t.shape[0] - 1
+    own_cell = jnp.floor(t_mid * cells).astype(on_own.cell.dtype)[:, :, None]
+    cell = jnp.broadcast_to(on_own.cell, u.shape)
+    own = own | fused_reduce(
+        jnp.any,
+        on_own.valid
+        & (cell != own_cell)
+        & _grazing(
+            cross(dq, on_own.sight) * u * (1.0 - u) * (1.0 + u),
+            jnp.take_along_axis(r, cell, -1),
+            jnp.take_along_axis(r, cell + 1, -1),
+            dot(dq, on_own.sight),
+            reach_q,
+        ),
+    )
     return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~own

@@ -6,7 +6,8 @@ Every occlusion event is a root of a smooth function F(t; theta) of the curve pa
 1. **Brackets.** F and dF/dt are known at the grid nodes t_0 < ... < t_N. In each cell the
    cubic Hermite interpolant of (F, F') is split at its extremum when F' changes sign in
    the cell, so a pair of roots closer together than a cell (a near-double root) gives two
-   brackets; a plain sign change gives one.
+   brackets; a plain sign change gives one. Where F is known exactly at a point of the
+   cell (a probe) with the sign opposite to both ends, the cell is split there instead.
 2. **Compaction.** The bracket slots that hold a root are packed into a static budget of
    R slots (`first_true`); the true count is returned so that an exceeded
    budget is reported, never silently truncated.
@@ -88,15 +89,22 @@ def hermite_extremum(f0, f1, d0, d1, h):
     return s, jnp.where(turning, value, f1), turning
 
 
-def _slot_bounds(f0, f1, d0, d1, h, second):
+def _slot_bounds(f0, f1, d0, d1, h, second, probe=None):
     """The two root slots of a cell, [0, s] (first) and [s, 1] (second), as fractions of
-    the cell, with the values at their ends (the split value is interpolated)."""
+    the cell, with the values at their ends: split at the Hermite interpolant's extremum
+    (its value interpolated), or at the `probe` (fraction, exact value, present) where
+    F there has the sign opposite to both ends."""
     s, p, turning = hermite_extremum(f0, f1, d0, d1, h)
+    reveals = False
+    if probe is not None:
+        at, value, present = probe
+        reveals = present & (value * f0 < 0) & (value * f1 < 0)
+        s, p, turning = jnp.where(reveals, at, s), jnp.where(reveals, value, p), turning & ~reveals
     lo = jnp.where(second, s, 0.0)
     hi = jnp.where(second, 1.0, s)
     f_lo = jnp.where(second, p, f0)
     f_hi = jnp.where(second, f1, p)
-    return lo, hi, f_lo, f_hi, turning
+    return lo, hi, f_lo, f_hi, turning, reveals
 
 
 def first_true(mask: Bool[Array, "*batch n"], size: int):
@@ -136,6 +144,7 @@ def grid_brackets(
     budget: int,
     keep: Bool[Array, "*batch lines n"] | None = None,
     scale=None,
+    probes=None,
 ) -> Brackets:
     """Brackets of the roots of F on every line (a family of functions sharing a grid),
     packed over lines and cells into `budget` slots per batch element.
@@ -150,13 +159,17 @@ def grid_brackets(
       cell where |F| stays below 1e3 eps scale at both ends holds no resolvable root
       (F vanishes identically up to rounding, e.g. a camera on the line of a polygon
       edge), only rounding noise, and is skipped.
+    - `probes`: optional (fraction of the cell, F there, present), arrays (*batch, lines,
+      N): a point in each cell where F is known exactly. Where its F has the sign
+      opposite to both ends, the cell holds a pair of roots, one on either side of it,
+      however close together (`_events.grazing_probes`): the cell is split there.
     """
     h = jnp.diff(t_nodes)
     f0, f1 = cell_ends(values)
     d0, d1 = cell_ends(slopes)
     h_cells = jnp.broadcast_to(h, f0.shape)
-    first = _slot_bounds(f0, f1, d0, d1, h_cells, False)
-    second = _slot_bounds(f0, f1, d0, d1, h_cells, True)
+    first = _slot_bounds(f0, f1, d0, d1, h_cells, False, probes)[:4]
+    second = _slot_bounds(f0, f1, d0, d1, h_cells, True, probes)[:4]
     # The two slots of each cell chosen by a select on the slot's index, not stacked: XLA's
     # CPU backend emits a concatenation as a branch on the index of every element, which
     # keeps the kernel that computes the mask (and the values it fuses) from being
@@ -179,11 +192,19 @@ def grid_brackets(
     # Recompute the bracket of each packed slot from its cell's values only, gathered
     # at once (XLA's CPU backend launches a kernel per gather).
     cell_index = index // 2
-    table = jnp.stack(jnp.broadcast_arrays(f0, f1, d0, d1, h_cells, t_nodes[:-1]), -1)
-    table = jnp.take_along_axis(table.reshape(batch + (-1, 6)), cell_index[..., None], -2)
-    *cell_values, start = jnp.unstack(table, axis=-1)
+    columns = [f0, f1, d0, d1, h_cells, t_nodes[:-1]]
+    if probes is not None:
+        columns += [probes[0], probes[1], probes[2].astype(f0.dtype)]
+    table = jnp.stack(jnp.broadcast_arrays(*columns), -1)
+    table = jnp.take_along_axis(
+        table.reshape(batch + (-1, len(columns))), cell_index[..., None], -2
+    )
+    cell_values, start, probe = jnp.unstack(table[..., :5], axis=-1), table[..., 5], None
+    if probes is not None:
+        probe = (table[..., 6], table[..., 7], table[..., 8] > 0)
     f_start, _, _, _, width = cell_values
-    lo, hi, f_lo, f_hi, turning = _slot_bounds(*cell_values, index % 2 == 1)
+    second = index % 2 == 1
+    lo, hi, f_lo, f_hi, turning, revealed = _slot_bounds(*cell_values, second, probe)
     # Initial guess: regula falsi, then two Newton steps on the Hermite cubic (an
     # O(h^4) approximation of F), so that few steps on F itself are needed.
     guess = jnp.where(f_lo == 0, lo, lo + (hi - lo) * f_lo / safe_divisor(f_lo - f_hi))
@@ -202,6 +223,16 @@ def grid_brackets(
     # In t = start + width s: F'' / (2 F') = p''(s) / (2 p'(s) width), at least 1 / width.
     _, dp, ddp = cubic(guess)
     curvature = jnp.where(dp == 0, jnp.inf, jnp.abs(ddp) / (2.0 * jnp.abs(safe_divisor(dp))))
+    if probe is not None:
+        # A pair revealed by a probe, which the cubic does not resolve: F near the probe
+        # taken for F(probe) + F'' (s - probe)^2 / 2 (F' = 0 there), F'' from the far end
+        # of the slot, and its root as the guess; F'' / (2 F') = 1 / (2 |guess - probe|).
+        split, far = jnp.where(second, lo, hi), jnp.where(second, hi, lo)
+        f_split, f_far = jnp.where(second, f_lo, f_hi), jnp.where(second, f_hi, f_lo)
+        ratio = f_split / safe_divisor(f_split - f_far)
+        offset = (far - split) * jnp.sqrt(jnp.where(revealed, ratio, 0.0))
+        guess = jnp.where(revealed, split + offset, guess)
+        curvature = jnp.where(revealed, 0.5 / jnp.abs(safe_divisor(offset)), curvature)
     return Brackets(
         start + width * lo,
         start + width * hi,

@@ -42,6 +42,7 @@ from ._events import (
     Samples,
     bounding_discs,
     crossover_times,
+    grazing_probes,
     join_sources,
     range_times,
     sample,
@@ -253,6 +254,7 @@ def _camera_partition(
     else:
         tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
     sources = tangency_points(scene, tangents)
+    probes = None if conics is not None else grazing_probes(camera, samples, tangents, sources)
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
     if scene.has_corners:
         sources = join_sources(sources, silhouette_corners(scene, camera, samples))
@@ -265,7 +267,7 @@ def _camera_partition(
     if conics is not None:
         shadows = conic_shadow_times(conics, camera, sources, options.max_shadows)
     else:
-        shadows = shadow_times(scene, camera, samples, sources, options.max_shadows, iters)
+        shadows = shadow_times(scene, camera, samples, sources, probes, options.max_shadows, iters)
     pieces.append(shadows.t)
     ranges = None
     if pose.range is not None:
@@ -284,7 +286,9 @@ def _camera_partition(
         blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
         visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
     else:
-        visible = visible_points(seen_from, samples, sense, t_mid, x_mid, dx_mid, one_thread)
+        visible = visible_points(
+            seen_from, samples, sense, t_mid, x_mid, dx_mid, probes, one_thread
+        )
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
     return CameraPartition(events, visible, tangents, shadows, ranges)
