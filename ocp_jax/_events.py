@@ -362,6 +362,10 @@ def shadow_times(
     )
     present = jnp.any(in_cell, -1)[:, None] & ~(tangent & probe_near)
     fraction = probe_t * cells - jnp.arange(cells)[None, None]
+    # Computed once, not in every element of the brackets' masks that read them.
+    probe = materialize(
+        jnp.broadcast_arrays(fraction, jnp.where(present, probe_values, jnp.nan)), scene
+    )
 
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
     start = take(tangency.depth)
@@ -369,7 +373,6 @@ def shadow_times(
     # Rays along a straight edge make F vanish on it up to rounding (deflated values
     # on a tangency point's own curve are exempt).
     scale = jnp.where(tangent, 0.0, norm(ray_grid) * norm(sight))
-    probe = tuple(jnp.broadcast_arrays(fraction, probe_values, present))
     brackets = grid_brackets(
         samples.t, values, slopes, budget, beyond & chosen[..., None], scale, probe
     )

@@ -92,13 +92,13 @@ def hermite_extremum(f0, f1, d0, d1, h):
 def _slot_bounds(f0, f1, d0, d1, h, second, probe=None):
     """The two root slots of a cell, [0, s] (first) and [s, 1] (second), as fractions of
     the cell, with the values at their ends: split at the Hermite interpolant's extremum
-    (its value interpolated), or at the `probe` (fraction, exact value, present) where
-    F there has the sign opposite to both ends."""
+    (its value interpolated), or at the `probe` (fraction, exact value or NaN for none)
+    where F there has the sign opposite to both ends."""
     s, p, turning = hermite_extremum(f0, f1, d0, d1, h)
     reveals = False
     if probe is not None:
-        at, value, present = probe
-        reveals = present & (value * f0 < 0) & (value * f1 < 0)
+        at, value = probe
+        reveals = (value * f0 < 0) & (value * f1 < 0)
         s, p, turning = jnp.where(reveals, at, s), jnp.where(reveals, value, p), turning & ~reveals
     lo = jnp.where(second, s, 0.0)
     hi = jnp.where(second, 1.0, s)
@@ -159,8 +159,8 @@ def grid_brackets(
       cell where |F| stays below 1e3 eps scale at both ends holds no resolvable root
       (F vanishes identically up to rounding, e.g. a camera on the line of a polygon
       edge), only rounding noise, and is skipped.
-    - `probes`: optional (fraction of the cell, F there, present), arrays (*batch, lines,
-      N): a point in each cell where F is known exactly. Where its F has the sign
+    - `probes`: optional (fraction of the cell, F there or NaN for none), arrays (*batch,
+      lines, N): a point in each cell where F is known exactly. Where its F has the sign
       opposite to both ends, the cell holds a pair of roots, one on either side of it,
       however close together (`_events.grazing_probes`): the cell is split there.
     """
@@ -194,14 +194,14 @@ def grid_brackets(
     cell_index = index // 2
     columns = [f0, f1, d0, d1, h_cells, t_nodes[:-1]]
     if probes is not None:
-        columns += [probes[0], probes[1], probes[2].astype(f0.dtype)]
+        columns += list(probes)
     table = jnp.stack(jnp.broadcast_arrays(*columns), -1)
     table = jnp.take_along_axis(
         table.reshape(batch + (-1, len(columns))), cell_index[..., None], -2
     )
     cell_values, start, probe = jnp.unstack(table[..., :5], axis=-1), table[..., 5], None
     if probes is not None:
-        probe = (table[..., 6], table[..., 7], table[..., 8] > 0)
+        probe = (table[..., 6], table[..., 7])
     f_start, _, _, _, width = cell_values
     second = index % 2 == 1
     lo, hi, f_lo, f_hi, turning, revealed = _slot_bounds(*cell_values, second, probe)
