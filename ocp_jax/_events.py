@@ -250,11 +250,13 @@ def grazing_probes(
 
     Where a line of sight grazes a curve, its two crossings can be closer together than
     the cubic Hermite interpolant of g = cross(d, x_j(s) - C) on the grid resolves (on
-    the circle of benchmarks/grazing.py, pairs a tenth of a cell apart). Seen from C, the angle of x_j(s) - C is extremal at the tangency times T
-    (where cross(x_j', x_j - C) = 0, Eq. 5.21), so sign g (that of the sine of the angle
-    from d) is extreme there: two crossings inside a cell, however close together,
-    straddle a tangency point, and g there has the sign opposite to both ends of the
-    cell (`grid_brackets`' probes, and `_occlusion._grazing`)."""
+    the circle of benchmarks/grazing.py, pairs a tenth of a cell apart). Seen from C,
+    the angle of x_j(s) - C is extremal at the tangency times T (where
+    cross(x_j', x_j - C) = 0, Eq. 5.21), so sign g (that of the sine of the angle from d)
+    is extreme there: two crossings inside a cell, however close together, straddle a
+    tangency point, and g there has the sign opposite to both ends of the cell
+    (`grid_brackets`' probes, and `_occlusion._grazing`, which also reads the points of
+    the cell's ends, `start` and `end`)."""
     camera, tangents, point = jax.lax.stop_gradient(
         (camera, tangents, points.point.map(lambda a: a.reshape(tangents.t.shape)))
     )

@@ -177,8 +177,9 @@ def visible_points(
     # The query's own curve: deflate the trivial root at t_mid and its periodic images
     # t_mid -+ 1 (the grid's ends are one point of the curve, and an image next to one
     # would leave g a root there that rounding puts on either side of it), with
-    # p = u (1 - u) (1 + u), u = t - t_mid: r = g / p, r' = (g' - r p') / p, with the
-    # limits r = g'(t_mid) / p', r' = 0 at the roots of p; and the depth's excess over
+    # p = u (1 - u) (1 + u), u = t - t_mid: r = g / p, r' = (g' - r p') / p; at a node
+    # on a root of p, r takes its limit g'(t_mid) / p' and r' is set to 0 (not its
+    # limit; the cell's interpolant only needs it roughly); and the depth's excess over
     # the query point's, e = (D - reach) / p -> x'(t_mid) . d / p' there.
     dq = d.map(lambda a: a[:, :, None])
     own_sight = sight.map(lambda a: a[:, None])
