@@ -242,6 +242,13 @@ class GrazingProbes(NamedTuple):
     end: Vec  # x_j - C at the cell's end node
 
 
+def grid_cell(t, samples: Samples) -> Int[Array, "..."]:
+    """The index of the grid cell [t_c, t_c+1) that holds each t in [0, 1] (t = 1 in the
+    last)."""
+    cells = samples.t.shape[0] - 1
+    return jnp.clip(jnp.floor(t * cells).astype(jnp.int32), 0, cells - 1)
+
+
 def grazing_probes(
     camera: Vec, samples: Samples, tangents: Roots, points: RaySources
 ) -> GrazingProbes:
@@ -260,8 +267,7 @@ def grazing_probes(
     camera, tangents, point = jax.lax.stop_gradient(
         (camera, tangents, points.point.map(lambda a: a.reshape(tangents.t.shape)))
     )
-    cells = samples.t.shape[0] - 1
-    cell = jnp.clip(jnp.floor(tangents.t * cells).astype(jnp.int32), 0, cells - 1)
+    cell = grid_cell(tangents.t, samples)
     rows = jnp.arange(cell.shape[0])[:, None]
 
     def node(offset):
@@ -330,10 +336,13 @@ def shadow_times(
     sight = sub(samples.x, c0).map(lambda a: a[:, None])  # (m, 1, N + 1)
     values = cross(ray_grid, sight)
 
-    u = samples.t[None, None] - take(tangency.t)
-    u = u - jnp.round(u)
-    near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
-    u = jnp.where(near, 1.0, u)
+    def offset(t):  # t - T wrapped to [-1/2, 1/2) (divisor 1 where it is 0) and whether 0
+        u = t - take(tangency.t)
+        u = u - jnp.round(u)
+        near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
+        return jnp.where(near, 1.0, u), near
+
+    u, near = offset(samples.t[None, None])
     own = take(tangency.curve) == jnp.arange(m)[:, None, None]
     tangent = own & take(tangency.tangent)
     curvature = cross(ray_grid, bend.map(take))
@@ -355,13 +364,9 @@ def shadow_times(
     first = jnp.argmax(in_cell, -1)  # (m, cells)
     probe_t = jnp.take_along_axis(probes.t, first, -1)[:, None]  # (m, 1, cells)
     probe_sight = probes.sight.map(lambda a: jnp.take_along_axis(a, first, -1)[:, None])
-    probe_u = probe_t - take(tangency.t)
-    probe_u = probe_u - jnp.round(probe_u)
-    probe_near = jnp.abs(probe_u) <= 1e4 * jnp.finfo(u.dtype).eps
+    probe_u, probe_near = offset(probe_t)
     probe_values = cross(ray_grid, probe_sight)
-    probe_values = jnp.where(
-        tangent, probe_values / jnp.where(probe_near, 1.0, probe_u) ** 2, probe_values
-    )
+    probe_values = jnp.where(tangent, probe_values / probe_u**2, probe_values)
     present = jnp.any(in_cell, -1)[:, None] & ~(tangent & probe_near)
     fraction = probe_t * cells - jnp.arange(cells)[None, None]
     # Computed once, not in every element of the brackets' masks that read them.

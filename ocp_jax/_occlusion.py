@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from ._events import GrazingProbes, Samples
+from ._events import GrazingProbes, Samples, grid_cell
 from ._materialize import computed_on_one_thread
 from ._reductions import fused_reduce
 from ._roots import cell_ends, hermite_extremum
@@ -117,6 +117,12 @@ def deflated_depth(excess, deflator, reach, r, r_mid):
     return in_segment
 
 
+def _deflator(u):
+    """p = u (1 - u) (1 + u), u = s - t_m in [-1, 1]: the roots of the own curve's line of
+    sight at t_m and at its periodic images t_m -+ 1, negative before t_m, positive after."""
+    return u * (1.0 - u) * (1.0 + u)
+
+
 def _grazing(value, start, end, depth, reach):
     """Probes whose line-of-sight function (`value`) has the sign opposite to both ends
     of the probe's cell (two crossings in it, one on either side), with the probe's depth
@@ -185,7 +191,7 @@ def visible_points(
     own_sight = sight.map(lambda a: a[:, None])
     g = cross(dq, own_sight)  # (m, q, N + 1)
     u = samples.t[None, None] - t_mid[:, :, None]
-    deflator = u * (1.0 - u) * (1.0 + u)
+    deflator = _deflator(u)
     deflator_slope = 1.0 - 3.0 * u * u
     tolerance = 1e4 * jnp.finfo(u.dtype).eps
     near = (jnp.abs(u) <= tolerance) | (jnp.abs(1.0 - jnp.abs(u)) <= tolerance)
@@ -216,16 +222,13 @@ def visible_points(
     # and r at the ends of their cells; not in the query point's own cell, where r is
     # deflated and the side of a crossing is decided as above.
     on_own = jax.tree.map(lambda a: a[:, None], probes)  # (m, 1, r)
-    u = on_own.t - t_mid[:, :, None]
-    cells = samples.t.shape[0] - 1
-    own_cell = jnp.floor(t_mid * cells).astype(on_own.cell.dtype)[:, :, None]
-    cell = jnp.broadcast_to(on_own.cell, u.shape)
+    cell = jnp.broadcast_to(on_own.cell, (m, t_mid.shape[1], on_own.cell.shape[-1]))
     own = own | fused_reduce(
         jnp.any,
         on_own.valid
-        & (cell != own_cell)
+        & (cell != grid_cell(t_mid, samples)[:, :, None])
         & _grazing(
-            cross(dq, on_own.sight) * u * (1.0 - u) * (1.0 + u),
+            cross(dq, on_own.sight) * _deflator(on_own.t - t_mid[:, :, None]),
             jnp.take_along_axis(r, cell, -1),
             jnp.take_along_axis(r, cell + 1, -1),
             dot(dq, on_own.sight),

@@ -199,9 +199,9 @@ def grid_brackets(
     table = jnp.take_along_axis(
         table.reshape(batch + (-1, len(columns))), cell_index[..., None], -2
     )
-    cell_values, start, probe = jnp.unstack(table[..., :5], axis=-1), table[..., 5], None
-    if probes is not None:
-        probe = (table[..., 6], table[..., 7])
+    cell_values = jnp.unstack(table[..., :5], axis=-1)
+    start = table[..., 5]
+    probe = None if probes is None else (table[..., 6], table[..., 7])
     f_start, _, _, _, width = cell_values
     second = index % 2 == 1
     lo, hi, f_lo, f_hi, turning, revealed = _slot_bounds(*cell_values, second, probe)

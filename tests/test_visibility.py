@@ -991,7 +991,8 @@ def tangency_probes(scene, camera, samples):
     tangents = _events.tangency_times(
         scene, camera, samples, OPTIONS.max_tangents, OPTIONS.newton_iterations
     )
-    return _events.grazing_probes(camera, samples, tangents, _events.tangency_points(scene, tangents))
+    points = _events.tangency_points(scene, tangents)
+    return _events.grazing_probes(camera, samples, tangents, points)
 
 
 @functools.cache
@@ -1010,7 +1011,9 @@ def conic_decisions():
         grid = (
             _visibility._closest_points(frozen, cams, samples, sense),
             (jnp.max(jnp.abs(samples.x.x)) + jnp.max(jnp.abs(samples.x.y)), sense),
-            _occlusion.visible_points(cam, samples, sense, t, x, dx, tangency_probes(frozen, cam, samples)),
+            _occlusion.visible_points(
+                cam, samples, sense, t, x, dx, tangency_probes(frozen, cam, samples)
+            ),
         )
         closed = (
             _conics.conic_distances(frames, scene.sides(), cams),
@@ -1130,13 +1133,13 @@ def test_points_between_the_seam_and_a_tangency_beside_it_are_decided_in_float32
     rounding put it on either side of the end, and 6 of these 24 points were taken for
     hidden (Q lost up to 4e-3 of itself)."""
     spec = H.to_reference(H.BANANA)
+    decide = point_decisions("banana", jnp.float32)
     seen, expected = [], []
     for tangency in (-1e-4, -3e-5, 3e-5, 1e-4):
         x, dx, _ = eval_curve(spec[0], tangency)
         for along in (2.0, -2.0):
             camera = x + along * dx / np.linalg.norm(dx)
             t = np.mod(tangency * np.array([[0.25, 0.5, 0.75]]), 1.0)
-            decide = point_decisions("banana", jnp.float32)
             seen += list(np.asarray(decide(jnp.float32(camera), jnp.float32(t)))[0])
             intervals = reference_visible_intervals(spec, camera)[0]
             expected += [any(a < s < b for a, b in intervals) for s in t[0]]
