@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from ._curves import _is_concrete
+from ._curves import _is_concrete, to_frame
 
 __all__ = ["Camera"]
 
@@ -88,6 +88,13 @@ class Camera(eqx.Module):
     @property
     def shape(self) -> tuple[int, ...]:
         return self.position.shape[:-1]
+
+    def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "Camera":
+        """The same poses in the coordinates (x - origin) / scale (angles unchanged)."""
+        moved = [to_frame(self.position, origin, scale)]
+        if self.range is not None:
+            moved.append(self.range / scale)
+        return eqx.tree_at(lambda c: [c.position, c.range][: len(moved)], self, moved)
 
     def direction(self) -> Float[Array, "*k 2"]:
         """u = (cos heading, sin heading)."""

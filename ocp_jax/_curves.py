@@ -51,6 +51,23 @@ def _as_points(points, name: str, min_count: int) -> Array:
     return points
 
 
+def _point_bounds(points: Array) -> tuple[Array, Array]:
+    """The bounding box of control points (..., 2): it holds a Bezier or B-spline curve
+    (each point of one is a convex combination of its control points)."""
+    points = points.reshape(-1, 2)
+    return jnp.min(points, 0), jnp.max(points, 0)
+
+
+def to_frame(points: Float[Array, "*n 2"], origin: Array, scale: Array) -> Array:
+    """Points in the coordinates (p - origin) / scale."""
+    return (points - origin.reshape((1,) * (points.ndim - 1) + (2,))) / scale
+
+
+def _points_in_frame(curve, points, origin, scale):
+    """`curve` with its control points (`points(curve)`) in the frame (p - origin) / scale."""
+    return eqx.tree_at(points, curve, to_frame(points(curve), origin, scale))
+
+
 def _powers(t: Array, degree: int) -> list[Array]:
     """[1, t, t^2, ..., t^degree] built by products (t**0 has a NaN derivative at 0)."""
     out = [jnp.ones_like(t)]
@@ -76,7 +93,8 @@ def _bernstein_combination(tp, sp, degree: int, points: Array) -> Vec:
 class AbstractCurve(eqx.Module):
     """A closed, regular, twice differentiable curve x: [0, 1) -> R^2 (Eq. 2.1).
 
-    Subclasses implement `derivatives`; everything else derives from it.
+    Subclasses implement `components`, `bounds` and `in_frame`; everything else derives
+    from them.
     """
 
     @abc.abstractmethod
@@ -85,6 +103,14 @@ class AbstractCurve(eqx.Module):
 
         At t = 1 the left limits are returned (a closed curve has x(1) = x(0)).
         """
+
+    @abc.abstractmethod
+    def bounds(self) -> tuple[Float[Array, "2"], Float[Array, "2"]]:
+        """The lower and upper corners of an axis-aligned box that holds the curve."""
+
+    @abc.abstractmethod
+    def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "AbstractCurve":
+        """The same curve in the coordinates (x - origin) / scale (same parameter t)."""
 
     def components_left(self, t: Float[Array, "*shape"]) -> tuple[Vec, Vec, Vec]:
         """Left limits of (x, x', x'') at t (they differ from `components` at corners)."""
@@ -173,6 +199,12 @@ class BezierCurve(AbstractCurve):
 
     def __init__(self, control_points: Float[ArrayLike, "n 2"]):
         self.control_points = _as_points(control_points, "BezierCurve control_points", 4)
+
+    def bounds(self):
+        return _point_bounds(self.control_points)
+
+    def in_frame(self, origin, scale):
+        return _points_in_frame(self, lambda c: c.control_points, origin, scale)
 
     def __check_init__(self):
         p = self.control_points
@@ -306,6 +338,12 @@ class BSplineCurve(AbstractCurve):
         if _is_concrete(self.control_points):
             _check_regular(self, "BSplineCurve")
 
+    def bounds(self):
+        return _point_bounds(self.control_points)
+
+    def in_frame(self, origin, scale):
+        return _points_in_frame(self, lambda c: c.control_points, origin, scale)
+
     def components(self, t):
         p = self.control_points
         n, deg = p.shape[0], self.degree
@@ -390,6 +428,16 @@ class Circle(AbstractConic):
         identity = jnp.eye(2, dtype=self.center.dtype)
         return UnitFrame(self.center, identity / self.radius, identity * self.radius)
 
+    def bounds(self):
+        return self.center - self.radius, self.center + self.radius
+
+    def in_frame(self, origin, scale):
+        return eqx.tree_at(
+            lambda c: (c.center, c.radius),
+            self,
+            (to_frame(self.center, origin, scale), self.radius / scale),
+        )
+
 
 class Ellipse(AbstractConic):
     """x(t) = c + R(angle) (a cos 2 pi t, b sin 2 pi t), counter-clockwise."""
@@ -440,6 +488,17 @@ class Ellipse(AbstractConic):
         rows = jnp.stack([jnp.stack([cos, sin]), jnp.stack([-sin, cos])])
         return UnitFrame(self.center, rows / self.semi_axes[:, None], rows.T * self.semi_axes[None])
 
+    def bounds(self):
+        reach = jnp.max(self.semi_axes)  # (the circle about the centre through the major axis)
+        return self.center - reach, self.center + reach
+
+    def in_frame(self, origin, scale):
+        return eqx.tree_at(
+            lambda c: (c.center, c.semi_axes),
+            self,
+            (to_frame(self.center, origin, scale), self.semi_axes / scale),
+        )
+
     def panels(self):
         return 8
 
@@ -487,6 +546,12 @@ class PiecewiseCurve(AbstractCurve):
     def __check_init__(self):
         if _is_concrete(self.points):
             _check_regular(self, "PiecewiseCurve")
+
+    def bounds(self):
+        return _point_bounds(self.points)
+
+    def in_frame(self, origin, scale):
+        return _points_in_frame(self, lambda c: c.points, origin, scale)
 
     @property
     def control_points(self) -> Float[Array, "n d1 2"]:

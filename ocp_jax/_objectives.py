@@ -21,7 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._curves import _is_concrete
-from ._vec import Vec, cross, dot, sub
+from ._vec import Vec, add, cross, dot, scale, sub
 
 __all__ = [
     "AbstractLocalObjective",
@@ -38,11 +38,14 @@ class AbstractLocalObjective(eqx.Module):
     argument per member of a group of `group_size` cameras.
 
     `is_constant` is True when q does not depend on the cameras; then two groups never
-    trade places as the best one and no crossover events are needed.
+    trade places as the best one and no crossover events are needed. `similar` is True
+    when q is unchanged by a similarity (moving and scaling points, tangents and cameras
+    together), as the angles and ratios of lengths are.
     """
 
     is_constant: ClassVar[bool] = False
     group_size: ClassVar[int] = 1
+    similar: ClassVar[bool] = False
 
     @abc.abstractmethod
     def __call__(
@@ -59,11 +62,44 @@ class AbstractLocalObjective(eqx.Module):
         shape = jnp.broadcast_shapes(*(v.x.shape for v in vecs))
         return q(*(v.map(lambda a: jnp.broadcast_to(a, shape)).stack() for v in vecs))
 
+    def in_frame(
+        self, origin: Float[Array, "2"], scale: Float[Array, ""]
+    ) -> "AbstractLocalObjective":
+        """The same q for points, tangents and cameras given in the coordinates
+        (x - origin) / scale (the engine's frame, `_frame.py`): q itself where it is
+        `similar`, else q of the points mapped back."""
+        return self if self.similar else _InFrame(self, origin, scale)
+
+
+class _InFrame(AbstractLocalObjective):
+    """q evaluated in the user's coordinates x = origin + scale x_frame (`in_frame`)."""
+
+    objective: AbstractLocalObjective
+    origin: Float[Array, "2"]
+    scale: Float[Array, ""]
+
+    @property
+    def is_constant(self) -> bool:  # pyright: ignore[reportIncompatibleVariableOverride]
+        return self.objective.is_constant
+
+    @property
+    def group_size(self) -> int:  # pyright: ignore[reportIncompatibleVariableOverride]
+        return self.objective.group_size
+
+    def __call__(self, point, tangent, *cameras):
+        back = lambda p: self.origin + self.scale * p
+        return self.objective(back(point), self.scale * tangent, *map(back, cameras))
+
+    def evaluate(self, point, tangent, *cameras):
+        back = lambda p: add(Vec(*self.origin), scale(self.scale, p))
+        return self.objective.evaluate(back(point), scale(self.scale, tangent), *map(back, cameras))
+
 
 class VisibleLength(AbstractLocalObjective):
     """q = 1 (Eq. 3.11): Q is the visible length of the objects."""
 
     is_constant: ClassVar[bool] = True
+    similar: ClassVar[bool] = True
 
     def __call__(self, point, tangent, camera):
         return jnp.ones((), jnp.result_type(point, camera))
@@ -85,6 +121,8 @@ class Foreshortened(AbstractLocalObjective):
     vanish at tangency times for Q to be differentiable across them). We use cos^2: a
     surface element seen head-on counts fully, one seen grazing counts zero.
     """
+
+    similar: ClassVar[bool] = True
 
     def __call__(self, point, tangent, camera):
         return self.evaluate(Vec.of(point), Vec.of(tangent), Vec.of(camera))
@@ -129,6 +167,10 @@ class Reconstruction(AbstractLocalObjective):
     def __call__(self, point, tangent, camera_a, camera_b):
         return self.evaluate(Vec.of(point), Vec.of(tangent), Vec.of(camera_a), Vec.of(camera_b))
 
+    def in_frame(self, origin, scale):
+        # q depends on lengths through d1 d2 / area only: lengths / scale, area / scale^2
+        return eqx.tree_at(lambda q: q.area, self, self.area / scale**2)
+
     def evaluate(self, point, tangent, camera_a, camera_b):
         sight_a, sight_b = sub(point, camera_a), sub(point, camera_b)
         spread = self.area * cross(sight_a, sight_b)  # area d1 d2 sin(theta)
@@ -143,6 +185,7 @@ class Coverage(AbstractLocalObjective):
 
     m: int = eqx.field(static=True, default=2)
     is_constant: ClassVar[bool] = True
+    similar: ClassVar[bool] = True
 
     def __check_init__(self):
         if not isinstance(self.m, int) or self.m < 1:

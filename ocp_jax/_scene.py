@@ -111,6 +111,16 @@ class Scene(eqx.Module):
         t = jnp.asarray(t, self.dtype)
         return self._map(_components_left, t)
 
+    def bounds(self) -> tuple[Float[Array, "2"], Float[Array, "2"]]:
+        """The lower and upper corners of an axis-aligned box that holds every curve."""
+        lows, highs = self._map(lambda c: c.bounds())  # (m, 2) each
+        return jnp.min(lows, 0), jnp.max(highs, 0)
+
+    def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "Scene":
+        """The same scene in the coordinates (x - origin) / scale."""
+        curves = tuple(c.in_frame(origin, scale) for c in self.curves)
+        return eqx.tree_at(lambda s: s.curves, self, curves)
+
     @property
     def has_corners(self) -> bool:
         return any(c.corners().size for c in self.curves)

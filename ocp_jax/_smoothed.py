@@ -95,6 +95,10 @@ class Smoothed(AbstractLocalObjective):
         self.delta = None if delta is None else jnp.asarray(delta)
         self.nodes = nodes
 
+    def in_frame(self, origin, scale):
+        # (the widths are angles and relative depths: unchanged)
+        return eqx.tree_at(lambda s: s.objective, self, self.objective.in_frame(origin, scale))
+
     def __check_init__(self):
         if isinstance(self.objective, Smoothed):
             raise TypeError("Smoothed(Smoothed(...)): smooth a plain local objective once.")

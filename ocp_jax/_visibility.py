@@ -37,6 +37,7 @@ from ._conics import (
     conic_shadow_times,
     conic_tangency_times,
 )
+from ._curves import to_frame
 from ._events import (
     Roots,
     Samples,
@@ -52,6 +53,7 @@ from ._events import (
     tangency_times,
     wedge_edges,
 )
+from ._frame import scene_frame
 from ._materialize import computed_on_one_thread, materialize
 from ._objectives import (
     AbstractLocalObjective,
@@ -399,10 +401,9 @@ def _check_cameras(scene, cameras: Vec, nearest: Nearest, samples: Samples, quad
     return finite, inside, on_curve, too_close
 
 
-def _events(scene: Scene, cameras, objective, options: VisibilityOptions) -> Events:
+def _events(scene: Scene, poses: Camera, objective, options: VisibilityOptions) -> Events:
     """The events of every camera on every curve, and their crossovers (for several
     cameras and a camera-dependent q)."""
-    poses = _poses(scene, cameras)
     cameras = Vec.of(poses.position)
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = _sense(scene, samples)
@@ -580,8 +581,12 @@ def _value_and_failures(scene, cameras, objective, options):
     """Q (exact, or smoothed for a `Smoothed` objective), the failure flags of every
     check and their messages."""
     objective = as_local_objective(objective)
+    # In the scene's frame, where the engine's products of lengths neither underflow nor
+    # overflow; Q, a length, scales back.
+    poses = _poses(scene, cameras)  # (checks that `scene` is a Scene)
+    frame = scene_frame(scene)
+    scene, poses, objective = (a.in_frame(*frame) for a in (scene, poses, objective))
     if isinstance(objective, Smoothed):
-        poses = _poses(scene, cameras)
         samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
         sense = _sense(scene, samples)
         groups = camera_groups(objective, poses.shape[0])
@@ -590,11 +595,11 @@ def _value_and_failures(scene, cameras, objective, options):
         nearest = _nearest_points(scene, Vec.of(poses.position), samples, sense)
         failures = _input_failures(scene, poses, nearest, samples, options.quadrature, False)
         failed = jnp.stack([f for f, _ in failures])
-        return value, failed, [message for _, message in failures]
-    events = _events(scene, cameras, objective, options)
+        return frame.scale * value, failed, [message for _, message in failures]
+    events = _events(scene, poses, objective, options)
     value, intervals = _value(scene, events, objective, options)
     failed, messages = _failures(scene, events, options, not objective.is_constant, intervals)
-    return value, failed, messages
+    return frame.scale * value, failed, messages
 
 
 def visibility(
@@ -645,11 +650,12 @@ def valid_visibility(scene, cameras, objective, options) -> tuple[Array, Array]:
 def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | None = None):
     """Distance from each camera to each curve, negative inside the object: shape (k, m).
     Differentiable in the cameras (the gradient is the unit vector from the nearest point)."""
-    samples = sample(jax.lax.stop_gradient(scene), grid or scene.grid_cells())
-    distance, outward, _ = _closest_points(
-        jax.lax.stop_gradient(scene), Vec.of(cameras), samples, _sense(scene, samples)
-    )
-    return jnp.where(outward >= 0, distance, -distance).T
+    origin, scale = scene_frame(scene)  # (computed in the scene's frame, as Q)
+    scene = jax.lax.stop_gradient(scene).in_frame(origin, scale)
+    samples = sample(scene, grid or scene.grid_cells())
+    cameras = Vec.of(to_frame(jnp.asarray(cameras), origin, scale))
+    distance, outward, _ = _closest_points(scene, cameras, samples, _sense(scene, samples))
+    return scale * jnp.where(outward >= 0, distance, -distance).T
 
 
 class VisibleIntervals(eqx.Module):
@@ -696,7 +702,10 @@ def visible_intervals(
 
 @eqx.filter_jit
 def _visible_intervals(scene, cameras, options):
-    events = _events(scene, cameras, VisibleLength(), options)
+    poses = _poses(scene, cameras)
+    frame = scene_frame(scene)
+    scene, poses = scene.in_frame(*frame), poses.in_frame(*frame)
+    events = _events(scene, poses, VisibleLength(), options)
     partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
     start = _checked(start, *_failures(scene, events, options, False))
