@@ -24,7 +24,7 @@ import numpy as np
 from compiler_options import alternating
 from evaluate import OBJECTIVE, case, ocp
 
-from ocp_jax._visibility import _as_input, _events, valid_visibility
+from ocp_jax._visibility import _as_input, _events, _poses, valid_visibility
 
 GENEROUS = ocp.VisibilityOptions(max_tangents=16, max_shadows=32)
 BUDGETS = {
@@ -50,7 +50,7 @@ def slots_used(scene: ocp.Scene) -> tuple[int, int, int]:
     for a camera inside an object, which the grid has)."""
 
     def one(c):
-        partitions = _events(scene, _as_input(c), OBJECTIVE, GENEROUS).partitions
+        partitions = _events(scene, _poses(scene, _as_input(c)), OBJECTIVE, GENEROUS).partitions
         valid = valid_visibility(scene, c, OBJECTIVE, GENEROUS)[1]
         return valid, partitions.tangents.count.max(), partitions.shadows.count.max()
 

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 jax.config.update("jax_enable_x64", True)
 
 import ocp_jax as ocp  # noqa: E402
-from ocp_jax._visibility import _events, _value  # noqa: E402
+from ocp_jax._visibility import _events, _poses, _value  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 from helpers import circle_foreshortened  # noqa: E402
@@ -39,7 +39,7 @@ def main():
             for t in directions:
                 angle = 2 * math.pi * t
                 cameras = jnp.array([[d * math.cos(angle), d * math.sin(angle)]])
-                events = _events(scene, cameras, ocp.Foreshortened(), options)
+                events = _events(scene, _poses(scene, cameras), ocp.Foreshortened(), options)
                 value, _ = _value(scene, events, ocp.Foreshortened(), options)
                 cells.append(f"{abs(float(value) / circle_foreshortened(1.0, d) - 1):12.1e}")
             try:

@@ -91,10 +91,10 @@ class Camera(eqx.Module):
 
     def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "Camera":
         """The same poses in the coordinates (x - origin) / scale (angles unchanged)."""
-        moved = [to_frame(self.position, origin, scale)]
-        if self.range is not None:
-            moved.append(self.range / scale)
-        return eqx.tree_at(lambda c: [c.position, c.range][: len(moved)], self, moved)
+        moved = eqx.tree_at(lambda c: c.position, self, to_frame(self.position, origin, scale))
+        if self.range is None:
+            return moved
+        return eqx.tree_at(lambda c: c.range, moved, self.range / scale)
 
     def direction(self) -> Float[Array, "*k 2"]:
         """u = (cos heading, sin heading)."""

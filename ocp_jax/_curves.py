@@ -93,8 +93,8 @@ def _bernstein_combination(tp, sp, degree: int, points: Array) -> Vec:
 class AbstractCurve(eqx.Module):
     """A closed, regular, twice differentiable curve x: [0, 1) -> R^2 (Eq. 2.1).
 
-    Subclasses implement `components`, `bounds` and `in_frame`; everything else derives
-    from them.
+    Subclasses implement `components`; everything else derives from it (built-in curves
+    also give exact `bounds` and `in_frame` from their parameters).
     """
 
     @abc.abstractmethod
@@ -104,13 +104,17 @@ class AbstractCurve(eqx.Module):
         At t = 1 the left limits are returned (a closed curve has x(1) = x(0)).
         """
 
-    @abc.abstractmethod
     def bounds(self) -> tuple[Float[Array, "2"], Float[Array, "2"]]:
-        """The lower and upper corners of an axis-aligned box that holds the curve."""
+        """The lower and upper corners of an axis-aligned box about the curve; here that of
+        64 of its points (it only sets the engine's frame, `_frame.py`, for which any box
+        of about the curve's size and place will do)."""
+        x = self.components(jnp.arange(64, dtype=self.dtype) / 64)[0]
+        return jnp.stack([x.x.min(), x.y.min()]), jnp.stack([x.x.max(), x.y.max()])
 
-    @abc.abstractmethod
     def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "AbstractCurve":
-        """The same curve in the coordinates (x - origin) / scale (same parameter t)."""
+        """The same curve in the coordinates (x - origin) / scale (same parameter t); here
+        its points mapped after each evaluation."""
+        return _CurveInFrame(self, origin, scale)
 
     def components_left(self, t: Float[Array, "*shape"]) -> tuple[Vec, Vec, Vec]:
         """Left limits of (x, x', x'') at t (they differ from `components` at corners)."""
@@ -178,6 +182,40 @@ def _check_regular(curve: AbstractCurve, name: str) -> None:
             f"{name} is not regular: x'(t) vanishes (the curve stops or degenerates to a "
             "point). Move the control points apart."
         )
+
+
+class _CurveInFrame(AbstractCurve):
+    """A curve without `in_frame` of its own, in the coordinates (x - origin) / scale."""
+
+    curve: AbstractCurve
+    origin: Float[Array, "2"]
+    scale: Float[Array, ""]
+
+    def _mapped(self, components):
+        x, dx, ddx = components
+        to = lambda a: a / self.scale
+        return Vec(to(x.x - self.origin[0]), to(x.y - self.origin[1])), dx.map(to), ddx.map(to)
+
+    def components(self, t):
+        return self._mapped(self.curve.components(t))
+
+    def components_left(self, t):
+        return self._mapped(self.curve.components_left(t))
+
+    def corners(self):
+        return self.curve.corners()
+
+    def panels(self):
+        return self.curve.panels()
+
+    def breakpoints(self):
+        return self.curve.breakpoints()
+
+    def grid_cells(self):
+        return self.curve.grid_cells()
+
+    def costly_evaluation(self):
+        return self.curve.costly_evaluation()
 
 
 class BezierCurve(AbstractCurve):
@@ -429,7 +467,8 @@ class Circle(AbstractConic):
         return UnitFrame(self.center, identity / self.radius, identity * self.radius)
 
     def bounds(self):
-        return self.center - self.radius, self.center + self.radius
+        reach = jnp.abs(self.radius)  # (not checked under jit)
+        return self.center - reach, self.center + reach
 
     def in_frame(self, origin, scale):
         return eqx.tree_at(
@@ -489,7 +528,7 @@ class Ellipse(AbstractConic):
         return UnitFrame(self.center, rows / self.semi_axes[:, None], rows.T * self.semi_axes[None])
 
     def bounds(self):
-        reach = jnp.max(self.semi_axes)  # (the circle about the centre through the major axis)
+        reach = jnp.max(jnp.abs(self.semi_axes))  # (the circle through the major axis' ends)
         return self.center - reach, self.center + reach
 
     def in_frame(self, origin, scale):

@@ -1,7 +1,7 @@
 """The scene's frame: the engine computes in coordinates where the scene has unit size.
 
-Everything the engine decides is invariant under a similarity x -> (x - o) / s applied to
-the scene and the cameras together: tangency, shadow and crossover times are curve
+Everything the engine decides is invariant under x -> (x - o) / s (a translation and a
+uniform scaling) applied to the scene and the cameras together: tangency, shadow and crossover times are curve
 parameters, and whether a line of sight is blocked does not depend on units. Its tests
 do multiply lengths, though: the occlusion test's products reach the sixth power of the
 scene's size and the derivative of cos^2 in a crossover search the eighth, which in
@@ -14,7 +14,8 @@ above its size, and only the local objective sees the user's units
 With s a power of two, dividing by it is exact: a scene scaled by 2^j gives bitwise the
 Q of the scene, times 2^j. Q, an integral over arc length, scales back by s. The frame
 carries no derivative: Q is the same for every o and s, so its derivatives with respect
-to them vanish.
+to them vanish. The frame is the scene's only: a camera some 1e5 scene sizes away can
+still take float32's products of lengths out of range.
 """
 
 from typing import NamedTuple
@@ -38,8 +39,8 @@ def scene_frame(scene: Scene) -> Frame:
     its larger side (origin 0 and scale 1 where they are not finite positive numbers: the
     input checks then say what is wrong)."""
     low, high = jax.lax.stop_gradient(scene.bounds())
-    origin = 0.5 * (low + high)
     size = jnp.max(high - low)
+    origin = low + 0.5 * (high - low)
     usable = jnp.isfinite(size) & (size > 0)  # (then the origin is finite too)
     _, exponent = jnp.frexp(jnp.where(usable, size, 1.0))  # size = m 2^e, m in [1/2, 1)
     scale = jnp.ldexp(jnp.ones_like(size), exponent)

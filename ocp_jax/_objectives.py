@@ -39,8 +39,9 @@ class AbstractLocalObjective(eqx.Module):
 
     `is_constant` is True when q does not depend on the cameras; then two groups never
     trade places as the best one and no crossover events are needed. `similar` is True
-    when q is unchanged by a similarity (moving and scaling points, tangents and cameras
-    together), as the angles and ratios of lengths are.
+    when q is unchanged where points and cameras are moved and all lengths scaled
+    together (x -> (x - o) / s, tangents x' / s), as angles and ratios of lengths are;
+    the engine then evaluates q in its frame as it is (`in_frame`).
     """
 
     is_constant: ClassVar[bool] = False
@@ -169,7 +170,7 @@ class Reconstruction(AbstractLocalObjective):
 
     def in_frame(self, origin, scale):
         # q depends on lengths through d1 d2 / area only: lengths / scale, area / scale^2
-        return eqx.tree_at(lambda q: q.area, self, self.area / scale**2)
+        return eqx.tree_at(lambda q: q.area, self, self.area / scale / scale)
 
     def evaluate(self, point, tangent, camera_a, camera_b):
         sight_a, sight_b = sub(point, camera_a), sub(point, camera_b)

@@ -161,7 +161,9 @@ class Nearest(NamedTuple):
 
 
 class Events(NamedTuple):
-    """Every camera's partition of every curve, and what the checks and Q need with it."""
+    """Every camera's partition of every curve, and what the checks and Q need with it
+    (lengths in the coordinates of the scene and cameras given to `_events`: the scene's
+    frame, `_frame.py`)."""
 
     partitions: CameraPartition  # batched over the cameras
     groups: np.ndarray  # (G, l) indices of the cameras of each group
@@ -584,6 +586,7 @@ def _value_and_failures(scene, cameras, objective, options):
     # In the scene's frame, where the engine's products of lengths neither underflow nor
     # overflow; Q, a length, scales back.
     poses = _poses(scene, cameras)  # (checks that `scene` is a Scene)
+    camera_groups(objective, poses.shape[0])  # (checks that there are enough cameras)
     frame = scene_frame(scene)
     scene, poses, objective = (a.in_frame(*frame) for a in (scene, poses, objective))
     if isinstance(objective, Smoothed):

@@ -610,9 +610,8 @@ def test_float32():
 # the scene's frame: units and place do not matter (`_frame.py`)
 # ===========================================================================
 # `THREE` with a triangle (a polygon's corners and straight edges), two cameras
-FRAME_SCENE = ocp.Scene(
-    [*H.THREE.curves, ocp.PiecewiseCurve.polygon(jnp.array([[2.0, -2.5], [3.5, -1.5], [2.2, -1.0]]))]
-)
+TRIANGLE = ocp.PiecewiseCurve.polygon(jnp.array([[2.0, -2.5], [3.5, -1.5], [2.2, -1.0]]))
+FRAME_SCENE = ocp.Scene([*H.THREE.curves, TRIANGLE])
 FRAME_CAMERAS = np.array([[5.0, 4.0], [-1.4, 2.2]])
 
 
@@ -634,8 +633,8 @@ def _scaled(factor, dtype):
 def test_a_scene_scaled_by_a_power_of_two_gives_bitwise_the_same_q_in_float32(power):
     """In the scene's frame a scene scaled by 2^j is bitwise the scene: Q scales by 2^j,
     its gradient in the cameras not at all. Computed in the user's units, float32 lost
-    the products of lengths to underflow (a scene of size 1e-6: 2^-24 left Q 12% short)
-    and overflow (the slopes of a crossover search of cos^2, 2^24: 9e-5)."""
+    the products of lengths to underflow (at 2^-24 Q came out 52% short, its gradient
+    NaN) and overflow (2^24: 0.1%; benchmarks/scene_scale.py)."""
     unit = _frame_values(*_scaled(1.0, jnp.float32))
     scaled = _frame_values(*_scaled(2.0**power, jnp.float32))
     assert unit[0] > 0.5 and unit[1] > 0.3  # (the scene is seen)
@@ -653,6 +652,56 @@ def test_float32_q_of_tiny_and_huge_scenes_matches_float64(factor):
     for i in (0, 1):
         assert abs(float(value32[i]) / factor / float(value64[i]) - 1) < 2e-6
     assert rel(np.asarray(value32[2], np.float64), value64[2]) < 1e-5
+
+
+def test_lengths_of_objectives_and_cameras_scale_with_the_scene():
+    """Reconstruction's area (a length squared), a camera's range and the signed
+    distances scale with the scene: scaled by 2^-20 with them, Q and the distances
+    scale by 2^-20 exactly (in the frame both are the unscaled problem)."""
+    factor = 2.0**-20
+
+    def problem(c):
+        scene, cams = _scaled(c, jnp.float64)
+        return scene, ocp.Camera(cams, range=5.0 * c), ocp.Reconstruction(area=0.01 * c * c)
+
+    values = [
+        (
+            float(ocp.visibility(*problem(c))),
+            np.asarray(_visibility.signed_distances(problem(c)[0], jnp.asarray(FRAME_CAMERAS * c))),
+        )
+        for c in (1.0, factor)
+    ]
+    assert 0.5 < values[0][0] < 0.9  # (the range cuts: 0.96 unlimited)
+    assert values[1][0] == values[0][0] * factor
+    np.testing.assert_array_equal(values[1][1], values[0][1] * factor)
+
+
+class _UserCircle(ocp.AbstractCurve):
+    """A circle defined the way a user would add a curve type: `components` only."""
+
+    center: jax.Array
+    radius: jax.Array
+
+    def components(self, t):
+        angle = 2 * jnp.pi * t
+        c, s = jnp.cos(angle), jnp.sin(angle)
+        w = 2 * jnp.pi * self.radius
+        return (
+            Vec(self.center[0] + self.radius * c, self.center[1] + self.radius * s),
+            Vec(-w * s, w * c),
+            Vec(-2 * jnp.pi * w * c, -2 * jnp.pi * w * s),
+        )
+
+
+def test_a_user_curve_type_gets_the_default_frame():
+    """A curve type without `bounds` and `in_frame` of its own is moved into the frame by
+    mapping its points: Q equals that of the built-in Circle (off the origin, and with a
+    radius far from 1)."""
+    center, radius = jnp.array([40.0, -25.0]), 0.02
+    cams = jnp.array([[40.05, -25.03], [39.9, -24.96]])
+    user = ocp.visibility(ocp.Scene([_UserCircle(center, jnp.asarray(radius))]), cams, FS)
+    built_in = ocp.visibility(ocp.Scene([ocp.Circle(center, radius)]), cams, FS)
+    assert abs(float(user) / float(built_in) - 1) < 1e-12
 
 
 def test_a_user_objective_sees_points_and_cameras_in_the_users_coordinates():
