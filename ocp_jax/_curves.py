@@ -431,6 +431,21 @@ class AbstractConic(AbstractCurve):
     def unit_frame(self) -> UnitFrame:
         """The map onto the unit circle and its inverse."""
 
+    @abc.abstractmethod
+    def _lengths(self) -> Array:
+        """The field of its lengths (radius, semi-axes), beside its `center`."""
+
+    def bounds(self):
+        reach = jnp.max(jnp.abs(self._lengths()))  # (|.|: not checked under jit)
+        return self.center - reach, self.center + reach
+
+    def in_frame(self, origin, scale):
+        return eqx.tree_at(
+            lambda c: (c.center, c._lengths()),
+            self,
+            (to_frame(self.center, origin, scale), self._lengths() / scale),
+        )
+
 
 class Circle(AbstractConic):
     """x(t) = c + r (cos 2 pi t, sin 2 pi t), counter-clockwise."""
@@ -466,16 +481,8 @@ class Circle(AbstractConic):
         identity = jnp.eye(2, dtype=self.center.dtype)
         return UnitFrame(self.center, identity / self.radius, identity * self.radius)
 
-    def bounds(self):
-        reach = jnp.abs(self.radius)  # (not checked under jit)
-        return self.center - reach, self.center + reach
-
-    def in_frame(self, origin, scale):
-        return eqx.tree_at(
-            lambda c: (c.center, c.radius),
-            self,
-            (to_frame(self.center, origin, scale), self.radius / scale),
-        )
+    def _lengths(self):
+        return self.radius
 
 
 class Ellipse(AbstractConic):
@@ -527,16 +534,8 @@ class Ellipse(AbstractConic):
         rows = jnp.stack([jnp.stack([cos, sin]), jnp.stack([-sin, cos])])
         return UnitFrame(self.center, rows / self.semi_axes[:, None], rows.T * self.semi_axes[None])
 
-    def bounds(self):
-        reach = jnp.max(jnp.abs(self.semi_axes))  # (the circle through the major axis' ends)
-        return self.center - reach, self.center + reach
-
-    def in_frame(self, origin, scale):
-        return eqx.tree_at(
-            lambda c: (c.center, c.semi_axes),
-            self,
-            (to_frame(self.center, origin, scale), self.semi_axes / scale),
-        )
+    def _lengths(self):
+        return self.semi_axes
 
     def panels(self):
         return 8

@@ -1,8 +1,9 @@
 """The scene's frame: the engine computes in coordinates where the scene has unit size.
 
 Everything the engine decides is invariant under x -> (x - o) / s (a translation and a
-uniform scaling) applied to the scene and the cameras together: tangency, shadow and crossover times are curve
-parameters, and whether a line of sight is blocked does not depend on units. Its tests
+uniform scaling) applied to the scene and the cameras together: tangency, shadow and
+crossover times are curve parameters, and whether a line of sight is blocked does not
+depend on units. Its tests
 do multiply lengths, though: the occlusion test's products reach the sixth power of the
 scene's size and the derivative of cos^2 in a crossover search the eighth, which in
 float32 underflow for a scene of size 1e-6 and overflow for one of size 1e6 (Q was then

@@ -88,8 +88,7 @@ class _InFrame(AbstractLocalObjective):
         return self.objective.group_size
 
     def __call__(self, point, tangent, *cameras):
-        back = lambda p: self.origin + self.scale * p
-        return self.objective(back(point), self.scale * tangent, *map(back, cameras))
+        return self.evaluate(Vec.of(point), Vec.of(tangent), *map(Vec.of, cameras))
 
     def evaluate(self, point, tangent, *cameras):
         back = lambda p: add(Vec(*self.origin), scale(self.scale, p))

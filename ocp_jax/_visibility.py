@@ -53,7 +53,7 @@ from ._events import (
     tangency_times,
     wedge_edges,
 )
-from ._frame import scene_frame
+from ._frame import Frame, scene_frame
 from ._materialize import computed_on_one_thread, materialize
 from ._objectives import (
     AbstractLocalObjective,
@@ -579,20 +579,24 @@ def _checked(carrier, failed, messages):
     return eqx.branched_error_if(carrier, jnp.any(failed), jnp.argmax(failed), messages)
 
 
+def _in_scene_frame(scene, cameras) -> tuple[Frame, Scene, Camera]:
+    """The scene's frame, and the scene and the cameras' poses in it: there the engine's
+    products of lengths neither underflow nor overflow (`_frame.py`)."""
+    poses = _poses(scene, cameras)  # (first: it checks that `scene` is a Scene)
+    frame = scene_frame(scene)
+    return frame, scene.in_frame(*frame), poses.in_frame(*frame)
+
+
 def _value_and_failures(scene, cameras, objective, options):
     """Q (exact, or smoothed for a `Smoothed` objective), the failure flags of every
     check and their messages."""
     objective = as_local_objective(objective)
-    # In the scene's frame, where the engine's products of lengths neither underflow nor
-    # overflow; Q, a length, scales back.
-    poses = _poses(scene, cameras)  # (checks that `scene` is a Scene)
-    camera_groups(objective, poses.shape[0])  # (checks that there are enough cameras)
-    frame = scene_frame(scene)
-    scene, poses, objective = (a.in_frame(*frame) for a in (scene, poses, objective))
+    frame, scene, poses = _in_scene_frame(scene, cameras)
+    groups = camera_groups(objective, poses.shape[0])  # (its error names the user's q)
+    objective = objective.in_frame(*frame)
     if isinstance(objective, Smoothed):
         samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
         sense = _sense(scene, samples)
-        groups = camera_groups(objective, poses.shape[0])
         value = smoothed_value(scene, poses, objective, sense, groups, scene.observed())
         # (no too-close check: it concerns the exact engine's Gauss-Legendre nodes)
         nearest = _nearest_points(scene, Vec.of(poses.position), samples, sense)
@@ -705,9 +709,7 @@ def visible_intervals(
 
 @eqx.filter_jit
 def _visible_intervals(scene, cameras, options):
-    poses = _poses(scene, cameras)
-    frame = scene_frame(scene)
-    scene, poses = scene.in_frame(*frame), poses.in_frame(*frame)
+    _, scene, poses = _in_scene_frame(scene, cameras)
     events = _events(scene, poses, VisibleLength(), options)
     partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)

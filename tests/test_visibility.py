@@ -633,8 +633,9 @@ def _scaled(factor, dtype):
 def test_a_scene_scaled_by_a_power_of_two_gives_bitwise_the_same_q_in_float32(power):
     """In the scene's frame a scene scaled by 2^j is bitwise the scene: Q scales by 2^j,
     its gradient in the cameras not at all. Computed in the user's units, float32 lost
-    the products of lengths to underflow (at 2^-24 Q came out 52% short, its gradient
-    NaN) and overflow (2^24: 0.1%; benchmarks/scene_scale.py)."""
+    the products of lengths to underflow and overflow (benchmarks/scene_scale.py, before:
+    at 2^-30 Q 52% short and its gradient NaN; at 2^30 VisibleLength 0.1% off and
+    Foreshortened NaN). Both parameters fail on the code before."""
     unit = _frame_values(*_scaled(1.0, jnp.float32))
     scaled = _frame_values(*_scaled(2.0**power, jnp.float32))
     assert unit[0] > 0.5 and unit[1] > 0.3  # (the scene is seen)
