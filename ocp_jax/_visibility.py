@@ -330,33 +330,46 @@ def _integrand_at(x: Vec, dx: Vec, group, objective, seen):
 
 
 def _closest_points(scene, cameras: Vec, samples: Samples, sense):
-    """For every curve i and camera c, the point x_i(t*) nearest to C_c: the nearest grid
-    node, refined by safeguarded Newton on (x(t) - C) . x'(t) = 0 within its two cells.
+    """For every curve i and camera c, the point x_i(t*) nearest to C_c: the nearest chord
+    of the grid (exact for polygons, whose cells are straight), refined by safeguarded
+    Newton on (x(t) - C) . x'(t) = 0 from the projection onto it, within that cell (and,
+    for smooth curves, the cells beside it). The nearest grid node is not enough: on a
+    coarse grid (a polygon's edges are one cell each) it may lie on another edge than the
+    nearest point, whose outward side then says nothing about the camera's.
     Returns (distance, signed offset along the outward normal, t*), arrays (m, k)."""
-    camera = cameras.map(lambda a: a[None])  # (1, k)
-    rel = sub(samples.x.map(lambda a: a[:, None]), camera.map(lambda a: a[..., None]))
-    t0 = samples.t[jnp.argmin(dot(rel, rel), axis=2)]  # (m, k)
+    camera = cameras.map(lambda a: a[None, None])  # (1, 1, k)
+    start = samples.x.map(lambda a: a[:, :-1, None])  # (m, N, 1): cell j is [t_j, t_j+1]
+    chord = sub(samples.x.map(lambda a: a[:, 1:, None]), start)
+    rel = sub(camera, start)
+    along = jnp.clip(dot(rel, chord) / safe_divisor(dot(chord, chord)), 0.0, 1.0)
+    gap = sub(rel, Vec(along * chord.x, along * chord.y))
+    cell = jnp.argmin(dot(gap, gap), axis=1)  # (m, k)
+    along = jnp.take_along_axis(along, cell[:, None], axis=1)[:, 0]
     h = samples.t[1] - samples.t[0]
+    low = samples.t[cell]
+    widen = 0.0 if scene.has_corners else h  # Newton cannot cross a corner
+    camera = cameras.map(lambda a: a[None])  # (1, k)
 
     def newton(_, t):
         x, dx, ddx = scene.components(jnp.mod(t, 1.0))
         sight = sub(x, camera)
         step = dot(sight, dx) / safe_divisor(dot(dx, dx) + dot(sight, ddx))
-        return jnp.clip(t - step, t0 - h, t0 + h)
+        return jnp.clip(t - step, low - widen, low + h + widen)
 
     def outward(dx, offset):  # offset along the outward normal -J x' / |x'|
         return -sense[:, None] * cross(dx, offset) / safe_divisor(norm(dx))
 
-    t = jax.lax.fori_loop(0, 6, newton, t0)
+    t = jax.lax.fori_loop(0, 6, newton, low + along * h)
     x, dx, _ = scene.components(jnp.mod(t, 1.0))
     offset = sub(camera, x)
     distance, side = norm(offset), outward(dx, offset)
     if scene.has_corners:
-        # The nearest point may be a corner (a grid node), where Newton cannot settle.
-        # There the camera is outside if it is outside either edge at a convex corner,
-        # both edges at a reflex one.
-        corner, right, _ = scene.components(jnp.where(t0 == 1.0, 0.0, t0))
-        _, left, _ = scene.components_left(jnp.where(t0 == 0.0, 1.0, t0))
+        # The nearest point may be a corner (an end of the cell), where x' jumps. There
+        # the camera is outside if it is outside either edge at a convex corner, both
+        # edges at a reflex one.
+        node = jnp.where(along < 0.5, low, low + h)
+        corner, right, _ = scene.components(jnp.where(node == 1.0, 0.0, node))
+        _, left, _ = scene.components_left(jnp.where(node == 0.0, 1.0, node))
         offset = sub(camera, corner)
         out_right, out_left = outward(right, offset), outward(left, offset)
         convex = sense[:, None] * cross(left, right) >= 0
@@ -366,7 +379,7 @@ def _closest_points(scene, cameras: Vec, samples: Samples, sense):
         at_corner = norm(offset) <= distance
         distance = jnp.where(at_corner, norm(offset), distance)
         side = jnp.where(at_corner, corner_side, side)
-        t = jnp.where(at_corner, t0, t)
+        t = jnp.where(at_corner, node, t)
     return distance, side, jnp.mod(t, 1.0)
 
 

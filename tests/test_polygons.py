@@ -199,6 +199,37 @@ def test_camera_at_a_sharp_corner_is_outside():
     assert abs(vl[0] / want - 1) < 1e-9
 
 
+def _edge_seen_head_on(a, b, camera):
+    """(length, foreshortened length) of the edge a-b seen from `camera`, unoccluded:
+    q = d^2 / (d^2 + s^2) along the edge, s measured from the foot of the perpendicular."""
+    a, b, camera = (np.asarray(p, float) for p in (a, b, camera))
+    length = np.linalg.norm(b - a)
+    along = (b - a) / length
+    foot = np.dot(camera - a, along)
+    d = abs(np.cross(along, camera - a))
+    return length, d * (np.arctan((length - foot) / d) - np.arctan(-foot / d))
+
+
+def test_a_camera_beside_a_long_edge_is_outside():
+    """Polygons whose every edge is one grid cell: the grid node nearest to the camera is
+    a corner of other edges than the nearest one (whose outward sides hold the camera).
+    Until 2026-12-04 the nearest point was sought from that node and these cameras were
+    refused as inside; now from the nearest chord. Each sees one edge (closed forms)."""
+    trapezoid = np.array([[0, 0], [10, 0], [6, 1], [4, 1]], float)  # the camera below its base
+    triangle = np.array([[0, 7], [9, 10], [3, 12]], float)  # beside the edge (3,12)-(0,7)
+    scenes = [
+        ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.asarray(p))]) for p in (trapezoid, triangle)
+    ]
+    cameras = [[5.0, -1.0], [0.0, 8.0]]
+    vl, fs = evaluate("values", scenes, [[c] for c in cameras])
+    want = [
+        _edge_seen_head_on([0, 0], [10, 0], cameras[0]),
+        _edge_seen_head_on([3, 12], [0, 7], cameras[1]),
+    ]
+    np.testing.assert_allclose(vl, [w[0] for w in want], rtol=1e-12)
+    np.testing.assert_allclose(fs, [w[1] for w in want], rtol=1e-12)
+
+
 def test_camera_inside_a_polygon_raises():
     with pytest.raises(Exception, match="inside an object"):
         jax.block_until_ready(
