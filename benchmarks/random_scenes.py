@@ -1,13 +1,15 @@
 """Q and its gradient on random scenes, against the NumPy reference and finite differences.
 
     python benchmarks/random_scenes.py [--scenes 4] [--seed 0] [--scale 1] [--offset 0]
-        [--clearance 0.12] [--gradients] [--float32]
+        [--clearance 0.12] [--gradients] [--float32] [--mix NAME ...]
 
-Scenes the engine was not tuned on: six mixes of curve types (periodic B-splines of
-degree 2, 3 and 4, closed C2 Beziers, circles, ellipses, polygons, rounded rectangles),
+Scenes the engine was not tuned on: eight mixes of curve types (periodic B-splines of
+degree 2, 3 and 4, closed C2 Beziers, circles, ellipses, polygons, rounded rectangles,
+paths of quadratic pieces with kinks),
 each curve's shape drawn at random (star-shaped control polygons, non-convex, half of
 them clockwise), placed on a jittered grid without touching; one mix has tiny objects
-(1-10% of the others) around a large ellipse, one has eight objects. Cameras are drawn in
+(1-10% of the others) around a large ellipse, one has eight objects, one only polygons
+(whose grid is coarse: an edge is a cell). Cameras are drawn in
 free space, at least `--clearance` from every curve. For `--scenes` random scenes per mix
 and number of cameras k (1, 2, 3), this prints the largest relative difference of
 `VisibleLength` and `Foreshortened` Q to tests/reference.py (events on a 4096-cell grid,
@@ -66,6 +68,9 @@ MIXES = {
         "circle_tiny",
         "rounded",
     ],
+    # Corners only (a polygon's edges are single grid cells), and curved pieces with kinks.
+    "polygons only": ["polygon3", "polygon4", "polygon5", "polygon6"],
+    "kinked curved paths, polygon": ["kinked4", "kinked5", "polygon3"],
 }
 VL, FS = ocp.VisibleLength(), ocp.Foreshortened()
 SAMPLES = 1000  # points per curve for the placement checks
@@ -100,6 +105,15 @@ def curve(rng, kind: str, center, size: float = 1.0) -> ocp.AbstractCurve:
     if kind.startswith("polygon"):
         vertices = center + size * star(rng, int(kind.removeprefix("polygon")), 0.3, 1.1)
         return ocp.PiecewiseCurve.polygon(jnp.asarray(vertices))
+    if kind.startswith("kinked"):  # quadratic pieces between star vertices, bulging either way
+        vertices = center + size * star(rng, int(kind.removeprefix("kinked")), 0.5, 1.1)
+        ends = np.roll(vertices, -1, axis=0)
+        chord = ends - vertices
+        bulge = rng.uniform(-0.3, 0.3, (len(vertices), 1)) * np.stack(
+            [chord[:, 1], -chord[:, 0]], -1
+        )
+        pieces = [np.stack([a, 0.5 * (a + b) + c, b]) for a, b, c in zip(vertices, ends, bulge)]
+        return ocp.PiecewiseCurve.from_segments([jnp.asarray(p) for p in pieces])
     if kind == "rounded":
         width, height = size * rng.uniform(0.8, 1.8, 2)
         radius = rng.uniform(0.05, 0.35) * min(width, height)
@@ -231,6 +245,9 @@ def main():
     parser.add_argument("--clearance", type=float, default=0.12)
     parser.add_argument("--gradients", action="store_true")
     parser.add_argument("--float32", action="store_true", help="the engine in float32")
+    parser.add_argument(
+        "--mix", action="append", choices=list(MIXES), help="only these mixes (repeatable)"
+    )
     args = parser.parse_args()
     dtype, precision = ("float32", to_float32) if args.float32 else ("float64", lambda t: t)
     print(
@@ -243,6 +260,8 @@ def main():
     print(header + "  raised")
     worst = 0.0
     for m, (label, kinds) in enumerate(MIXES.items()):
+        if args.mix and label not in args.mix:
+            continue  # (the scenes of a mix are drawn the same with or without the others)
         for k in (1, 2, 3):
             errors, raised = [], 0
             for j in range(args.scenes):

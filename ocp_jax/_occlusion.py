@@ -144,11 +144,13 @@ def visible_points(
     x_mid: Vec,
     dx_mid: Vec,
     probes: GrazingProbes,
+    pieces: np.ndarray | None = None,
     one_thread: bool = False,
 ) -> Bool[Array, "m q"]:
     """chi(t_mid[i, k], camera) for query points x_mid, x'_mid (arrays (m, q)) on every
     curve i, with the camera's tangency points as `probes` of grazing lines of sight;
-    with `one_thread`, the test on the own curve is one kernel on one thread
+    `pieces`: the smooth piece of each grid cell (`Scene.pieces`, None where every curve
+    is one); with `one_thread`, the test on the own curve is one kernel on one thread
     (`computed_on_one_thread`)."""
     m = t_mid.shape[0]
     h = jnp.diff(samples.t)
@@ -211,11 +213,29 @@ def visible_points(
 
     dr = samples.at_nodes(slopes_at)
 
-    def crosses_own(r, dr, h, excess, deflator, reach, r_mid):
+    def crosses_own(r, dr, h, excess, deflator, reach, r_mid, undeflated):
         in_segment = deflated_depth(excess, deflator, reach, r, r_mid)
-        return fused_reduce(jnp.any, _crosses_segment(r, dr, h, in_segment))
+        crosses = _crosses_segment(r, dr, h, in_segment)
+        if undeflated is not None:  # cells off the query's piece: as on another curve
+            g, dg, depth, same_piece = undeflated
+            plain = _crosses_segment(g, dg, h, linear_depth(depth, reach))
+            crosses = jnp.where(same_piece, crosses, plain)
+        return fused_reduce(jnp.any, crosses)
 
-    args = (r, dr, h, excess, deflator, reach_q, r_mid)
+    # Across a corner g is no continuation of its trivial root at t_m: there r = g / p
+    # has a pole at t_m (a cell ending next to it takes a slope so steep that its Hermite
+    # interpolant turns and shows a pair of crossings), so cells on other pieces than
+    # the query's are tested on g itself.
+    undeflated = None
+    if pieces is not None:
+        query_piece = jnp.take_along_axis(jnp.asarray(pieces), grid_cell(t_mid, samples), 1)
+        undeflated = (
+            g,
+            samples.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[:, None]))),
+            dot(dq, own_sight),
+            jnp.asarray(pieces)[:, None, :] == query_piece[:, :, None],
+        )
+    args = (r, dr, h, excess, deflator, reach_q, r_mid, undeflated)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
 
     # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)

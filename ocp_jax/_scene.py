@@ -137,6 +137,19 @@ class Scene(eqx.Module):
             real[i, : len(c)] = True
         return times, real
 
+    def pieces(self, cells: int) -> np.ndarray | None:
+        """Static (m, cells) array: which smooth piece of its curve each grid cell lies
+        on (pieces run from corner to corner; the last and the first are one where t = 0
+        is no corner). None for a scene without corners (every curve one piece)."""
+        if not self.has_corners:
+            return None
+        starts = np.arange(cells) / cells
+        pieces = np.zeros((len(self.curves), cells), int)
+        for i, corners in enumerate(c.corners() for c in self.curves):
+            count = np.searchsorted(corners, starts, side="right")  # corners at or before
+            pieces[i] = count if len(corners) and corners[0] == 0 else count % max(1, len(corners))
+        return pieces
+
     @property
     def conics_only(self) -> bool:
         """Whether every curve is a conic (then the events have closed forms, `_conics.py`)."""

@@ -290,8 +290,9 @@ def _camera_partition(
         blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
         visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
     else:
+        pieces = scene.pieces(samples.t.shape[0] - 1)
         visible = visible_points(
-            seen_from, samples, sense, t_mid, x_mid, dx_mid, probes, one_thread
+            seen_from, samples, sense, t_mid, x_mid, dx_mid, probes, pieces, one_thread
         )
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)

@@ -230,6 +230,27 @@ def test_a_camera_beside_a_long_edge_is_outside():
     np.testing.assert_allclose(fs, [w[1] for w in want], rtol=1e-12)
 
 
+def test_a_short_arc_beside_a_corner_is_not_hidden_by_its_own_polygon():
+    """From (13, 10) the rectangle [7, 9] x [2, 3] shows its right edge and the part of
+    its top edge right of the shadow of the corner (10, 5) of [7, 10] x [5, 6], x > 8.8:
+    VisibleLength 1 + 0.2 + 1 + 3 (the other's right and top edges). The midpoint of
+    that short arc lies a twentieth of a grid cell (an edge) from the corner (9, 3); until
+    2026-12-04 the test of its own polygon took the deflated line-of-sight function
+    across that corner, whose pole made the right edge's cell show a pair of crossings,
+    and the arc was hidden (Q = 5, also at cameras nearby: `benchmarks/integer_polygons.py`
+    found this at 4 of 160 cameras moved off the integer grid, up to 5% of Q)."""
+    boxes = [
+        np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float)
+        for x0, y0, x1, y1 in [(7, 2, 9, 3), (7, 5, 10, 6)]
+    ]
+    scene = ocp.Scene([ocp.PiecewiseCurve.polygon(jnp.asarray(b)) for b in boxes])
+    nearby = [13.001, 10.0003]
+    vl, _ = evaluate("values", scene, [[[13.0, 10.0]], [nearby]])
+    shadow = 10.0 - 2.0 * (13.0 - 10.0) / (10.0 - 5.0)  # of the corner (10, 5) on y = 3
+    assert abs(vl[0] - (1 + (9 - shadow) + 1 + 3)) < 1e-12
+    assert abs(vl[1] / sum(visible_lengths(None, boxes, nearby)) - 1) < 1e-9
+
+
 def test_camera_inside_a_polygon_raises():
     with pytest.raises(Exception, match="inside an object"):
         jax.block_until_ready(
