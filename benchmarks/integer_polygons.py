@@ -122,7 +122,7 @@ def edge_on_sums(camera, polygons) -> list[float]:
 @jax.jit
 def engine(scene, cameras):
     """VisibleLength Q of each camera alone."""
-    one = lambda c: ocp.visibility(scene, c[None], ocp.VisibleLength())  # noqa: E731
+    one = lambda c: ocp.visibility(scene, c[None], ocp.VisibleLength())
     return jax.vmap(one)(cameras)
 
 
@@ -140,9 +140,11 @@ def main():
         try:
             exact = np.asarray(engine(scene, jnp.asarray(cameras)))
             nudged = np.asarray(engine(scene, jnp.asarray(cameras + NUDGE)))
-        except Exception as error:  # the engine's refusal of an input
+        except (ValueError, RuntimeError) as error:  # the engine refused an input
             refused += 1
-            print(f"scene {n}: refused: {str(error).splitlines()[0]}")
+            lines = str(error).splitlines()  # (under jit, after the callback's traceback)
+            message = next((line for line in lines if "ocp_jax:" in line), lines[0])
+            print(f"scene {n}: refused: {message[message.find('ocp_jax:') :]}")
             continue
         for camera, value, value_nudged in zip(cameras, exact, nudged):
             want_nudged = sum(visible_lengths(None, polygons, camera + NUDGE))

@@ -85,12 +85,22 @@ def tangency_function(t, args):
 
 
 def shadow_function(s, args):
-    """F(s) = cross(P - C, x(s) - C): x(s) on the line of sight through P."""
-    scene, camera, point = args
+    """F(s) = cross(P - C, x(s) - C): x(s) on the line of sight through P; where P is a
+    corner at T of this curve (`by_corner`: (whether, T)), F / |s - T| (`shadow_times`)."""
+    scene, camera, point, by_corner = args
     x, dx, _ = scene.components(s)
     ray = sub(point, camera)
     sight = sub(x, camera)
-    return cross(ray, sight), cross(ray, dx), norm(ray) * norm(sight)
+    value, slope, scale = cross(ray, sight), cross(ray, dx), norm(ray) * norm(sight)
+    if by_corner is None:
+        return value, slope, scale
+    is_corner, corner = by_corner
+    u = s - corner
+    u = u - jnp.round(u)
+    distance = jnp.where(is_corner & (u != 0), jnp.abs(u), 1.0)
+    value = value / distance
+    slope = jnp.where(is_corner, (slope - value * jnp.sign(u)) / distance, slope)
+    return value, slope, scale / distance
 
 
 def crossover_terms(objective, group_a, group_b, x: Vec, dx: Vec, ddx: Vec):
@@ -297,7 +307,10 @@ def shadow_times(
     has a double root at s = T (the ray touches the curve there). It is deflated,
     r(s) = g(s) / u^2 with u = s - T wrapped to [-1/2, 1/2) (r(T) = g''(T) / 2), so that
     only the genuine crossings remain, with no window around T excluded. A corner's ray
-    has a simple root at its corner T, a grid node, where g is set to exactly 0.
+    has a simple root at its corner T, a grid node: deflated alike, r(s) = g(s) / |u|
+    (the sign of g kept), with the one-sided limits +-g'(T+-) at T, so that a crossing
+    right beside the corner is a root of r in the corner's cell, and is solved for as
+    one (`shadow_function`), not taken for the corner's own root.
 
     Where a ray grazes a curve (near a bitangent line), its two crossings straddle the
     camera's tangency point on that curve (`grazing_probes`): g there, at the first
@@ -345,17 +358,38 @@ def shadow_times(
     u, near = offset(samples.t[None, None])
     own = take(tangency.curve) == jnp.arange(m)[:, None, None]
     tangent = own & take(tangency.tangent)
+    corner = own & ~take(tangency.tangent) if scene.has_corners else None
+    deflated = tangent if corner is None else tangent | corner
     curvature = cross(ray_grid, bend.map(take))
     r = jnp.where(near, 0.5 * curvature, values / u**2)
-    # A corner's ray has a simple root at the corner, a grid node: make it exactly 0
-    # there (an event at the corner, which is one already).
-    values = jnp.where(tangent, r, jnp.where(own & near, 0.0, values))
+    # Rays along a straight edge make F vanish on it up to rounding (deflated values
+    # on a tangency point's own curve are exempt; a corner's are scaled alike).
+    size = norm(ray_grid) * norm(sight)
 
-    def slopes_at(dx, _):
-        slopes = cross(ray_grid, dx.map(lambda a: a[:, None]))
-        return jnp.where(tangent, jnp.where(near, 0.0, (slopes - 2.0 * r * u) / u**2), slopes)
+    def deflated_at_nodes(dx, side):
+        """F, F' and the scale of F's terms at the nodes, for the cells on one side of
+        each (+1: after it, -1: before it; they differ at corners)."""
+        dx = dx.map(lambda a: a[:, None])  # (m, 1, N + 1)
+        slope = cross(ray_grid, dx)
+        value = jnp.where(tangent, r, values)
+        dvalue = jnp.where(tangent, (slope - 2.0 * r * u) / u**2, slope)
+        scale = jnp.where(tangent, 0.0, size)
+        if corner is not None:
+            distance = jnp.abs(u)
+            over = values / distance
+            value = jnp.where(corner, jnp.where(near, side * slope, over), value)
+            dvalue = jnp.where(corner, (slope - over * jnp.sign(u)) / distance, dvalue)
+            scale = jnp.where(
+                corner, jnp.where(near, norm(ray_grid) * norm(dx), size / distance), scale
+            )
+        return value, jnp.where(deflated & near, 0.0, dvalue), scale
 
-    slopes = samples.at_nodes(slopes_at)
+    if samples.dx_end is None:
+        values, slopes, scale = deflated_at_nodes(samples.dx, 1.0)
+    else:  # (right limits, left limits), as `grid_brackets` takes them
+        values, slopes, scale = zip(
+            deflated_at_nodes(samples.dx, 1.0), deflated_at_nodes(samples.dx_end, -1.0)
+        )
 
     # The first probe of each cell of every curve, g of every ray there (deflated as
     # above on the ray's own curve, where its own tangency point is no probe).
@@ -367,7 +401,9 @@ def shadow_times(
     probe_u, probe_near = offset(probe_t)
     probe_values = cross(ray_grid, probe_sight)
     probe_values = jnp.where(tangent, probe_values / probe_u**2, probe_values)
-    present = jnp.any(in_cell, -1)[:, None] & ~(tangent & probe_near)
+    if corner is not None:
+        probe_values = jnp.where(corner, probe_values / jnp.abs(probe_u), probe_values)
+    present = jnp.any(in_cell, -1)[:, None] & ~(deflated & probe_near)
     fraction = probe_t * cells - jnp.arange(cells)[None, None]
     # Computed once, not in every element of the brackets' masks that read them.
     probe = materialize(
@@ -377,16 +413,17 @@ def shadow_times(
     depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
     start = take(tangency.depth)
     beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
-    # Rays along a straight edge make F vanish on it up to rounding (deflated values
-    # on a tangency point's own curve are exempt).
-    scale = jnp.where(tangent, 0.0, norm(ray_grid) * norm(sight))
     brackets = grid_brackets(
         samples.t, values, slopes, budget, beyond & chosen[..., None], scale, probe
     )
     line = brackets.source // (2 * cells)  # (m, r)
     if pick is not None:
         line = jnp.take_along_axis(pick, line, 1)
-    args = (scene, camera, Vec.of(tangency.point.stack()[line]))  # one gather
+    by_corner = None
+    if corner is not None:  # which slots hold a corner's ray on its own curve, and T
+        own_corner = (tangency.curve[line] == jnp.arange(m)[:, None]) & ~tangency.tangent[line]
+        by_corner = (own_corner, jax.lax.stop_gradient(tangency.t[line]))
+    args = (scene, camera, Vec.of(tangency.point.stack()[line]), by_corner)  # one gather
     s, valid = solve_roots(
         shadow_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )

@@ -531,14 +531,33 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
         pts = [np.array([0.0, 1.0]), geo.bounds[i], sil[i]]
         if P.shape[0]:
             XC = geo.xg[i] - C
-            V = _cross(PC[:, None, :], XC[None, :, :])
-            S = np.broadcast_to(geo.tg[i][None, :], V.shape)
+            S = np.broadcast_to(geo.tg[i][None, :], (P.shape[0], geo.tg[i].size))
+            # A corner's ray on its own curve touches it at the corner T (a grid node,
+            # where F is rounding noise of either sign) and may cross it right beside:
+            # F / |s - T| there, whose limits at T (taken from the piece after T) keep
+            # the sign of F on both sides of a silhouette corner.
+            at_corner = (P_curve == i) & np.isin(P_t, geo.corners[i])
+            k_after = np.minimum((np.mod(P_t, 1.0) * geo.npieces[i]).round().astype(int),
+                                 geo.npieces[i] - 1)
+            limit = _cross(PC, _eval_local(c, np.mod(P_t, 1.0), k_after)[1])
 
             def F(rows, s, _c=c):
-                return _cross(PC[rows], _eval_x(_c, s) - C)
+                value = _cross(PC[rows], _eval_x(_c, s) - C)
+                u = np.abs(np.mod(s - P_t[rows] + 0.5, 1.0) - 0.5)
+                deflate = at_corner[rows] & (u > 0)
+                return np.where(deflate, value / np.where(deflate, u, 1.0), value)
+
+            V = F(np.arange(P.shape[0])[:, None], S)
+            U = np.abs(np.mod(S - P_t[:, None] + 0.5, 1.0) - 0.5)
+            V = np.where(at_corner[:, None] & (U == 0), limit[:, None], V)
 
             def dF(rows, s, _c=c):
-                return _cross(PC[rows], eval_curve(_c, s)[1])
+                slope = _cross(PC[rows], eval_curve(_c, s)[1])
+                u = np.mod(s - P_t[rows] + 0.5, 1.0) - 0.5
+                deflate = at_corner[rows] & (u != 0)
+                distance = np.where(deflate, np.abs(u), 1.0)
+                deflated = (slope - F(rows, s) * np.sign(u)) / distance
+                return np.where(deflate, deflated, slope)
 
             rows, roots = _roots_rows(F, S, V, dF)
             if roots.size:

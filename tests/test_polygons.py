@@ -2,12 +2,14 @@
 outside reference VisiLibity1, the NumPy reference, finite differences, bad input."""
 
 import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
+from matplotlib.path import Path
 
 import helpers as H
 import ocp_jax as ocp
@@ -249,6 +251,53 @@ def test_a_short_arc_beside_a_corner_is_not_hidden_by_its_own_polygon():
     shadow = 10.0 - 2.0 * (13.0 - 10.0) / (10.0 - 5.0)  # of the corner (10, 5) on y = 3
     assert abs(vl[0] - (1 + (9 - shadow) + 1 + 3)) < 1e-12
     assert abs(vl[1] / sum(visible_lengths(None, boxes, nearby)) - 1) < 1e-9
+
+
+def _kinked_star() -> ocp.PiecewiseCurve:
+    """Five quadratic pieces between the vertices of a star, bulging either way: five
+    kinks (eight segments, the longest three halved)."""
+    angle = 0.3 + 2 * np.pi * np.arange(5) / 5
+    radius = np.array([1.0, 0.6, 1.1, 0.7, 0.9])
+    vertices = np.stack([radius * np.cos(angle), radius * np.sin(angle)], -1)
+    ends = np.roll(vertices, -1, axis=0)
+    chord = ends - vertices
+    bulge = np.array([0.25, -0.2, 0.15, -0.25, 0.2])[:, None] * np.stack(
+        [chord[:, 1], -chord[:, 0]], -1
+    )
+    return ocp.PiecewiseCurve.from_segments(
+        [np.stack([a, (a + b) / 2 + c, b]) for a, b, c in zip(vertices, ends, bulge)]
+    )
+
+
+def test_cameras_on_tangent_lines_beside_kinks_match_reference():
+    """Cameras on the tangent lines at 1e-4 of a segment before and after each joint of
+    a path of quadratic pieces (with a triangle beside it), 2 units either way, against
+    the NumPy reference. Until 2026-12-04 three of them were off by 6e-6 to 3e-5
+    (VisibleLength): a kink's ray on its own curve, which crosses it again right beside
+    the kink, was solved in the kink's cell from F = 0 at the kink and returned a point
+    between the two roots; and one by 21%: its arc's midpoint lay 1e-10 from a grid
+    node, where the deflated occlusion test's slope lost every digit (-200 for 0.14)."""
+    star = _kinked_star()
+    triangle = ocp.PiecewiseCurve.polygon(jnp.array([[2.0, -0.5], [3.0, 0.2], [2.2, 0.8]]))
+    scene = ocp.Scene([star, triangle])
+    outlines = [np.asarray(c(jnp.linspace(0, 1, 2001)[:-1])) for c in scene.curves]
+    cameras = []
+    for joint, side, along in itertools.product(range(star.segments), (-1, 1), (-2.0, 2.0)):
+        t = (joint + side * 1e-4) / star.segments % 1.0
+        x, dx = (np.asarray(a) for a in star.derivatives(t)[:2])
+        camera = x + along * dx / np.linalg.norm(dx)
+        if all(
+            not Path(o).contains_point(camera) and np.linalg.norm(o - camera, axis=1).min() > 0.1
+            for o in outlines
+        ):
+            cameras.append(camera)
+    assert len(cameras) == 31
+    vl, fs = evaluate("values", scene, [[c] for c in cameras])
+    reference = H.to_reference(scene)
+    for camera, values in zip(cameras, zip(vl, fs)):
+        for value, name in zip(values, ("visible_length", "foreshortened")):
+            want = reference_visibility(reference, [camera], name)
+            assert abs(value / want - 1) < 1e-9, (camera, name, value, want)
 
 
 def test_camera_inside_a_polygon_raises():
