@@ -231,9 +231,9 @@ def visible_points(
         return fused_reduce(jnp.any, crosses)
 
     # Across a corner g is no continuation of its trivial root at t_m: there r = g / p
-    # has a pole at t_m (a cell ending next to it takes a slope so steep that its Hermite
-    # interpolant turns and shows a pair of crossings), so cells on other pieces than
-    # the query's are tested on g itself.
+    # is not smooth (its slope beside the corner grows as the jump of g' over the
+    # distance to t_m, and the cell's Hermite interpolant turns and shows a pair of
+    # crossings), so cells on other pieces than the query's are tested on g itself.
     undeflated = None
     if pieces is not None:
         query_piece = jnp.take_along_axis(jnp.asarray(pieces), grid_cell(t_mid, samples), 1)
