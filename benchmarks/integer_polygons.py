@@ -28,6 +28,7 @@ import sys
 import jax
 import jax.numpy as jnp
 import numpy as np
+from matplotlib.path import Path
 
 jax.config.update("jax_enable_x64", True)
 
@@ -62,24 +63,14 @@ def distance_to_edge(point, a, b):
     return np.linalg.norm(a + along * (b - a) - point)
 
 
-def inside(point, polygon) -> bool:
-    """Crossing number of a horizontal ray (the point is never on an edge here)."""
-    crossings = 0
-    for a, b in edges(polygon):
-        if (a[1] > point[1]) != (b[1] > point[1]):
-            x = a[0] + (point[1] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
-            crossings += x > point[0]
-    return crossings % 2 == 1
-
-
 def apart(p, q, gap) -> bool:
     """Whether polygons p and q are at least `gap` apart (neither inside the other)."""
     return (
         not any(crossing(a, b, c, d) for a, b in edges(p) for c, d in edges(q))
         and min(distance_to_edge(v, a, b) for v in p for a, b in edges(q)) >= gap
         and min(distance_to_edge(v, a, b) for v in q for a, b in edges(p)) >= gap
-        and not inside(p[0], q)
-        and not inside(q[0], p)
+        and not Path(q).contains_point(p[0])
+        and not Path(p).contains_point(q[0])
     )
 
 
@@ -102,7 +93,7 @@ def free_cameras(rng, polygons) -> np.ndarray:
     while len(cameras) < CAMERAS_PER_SCENE:
         c = rng.integers(-2, GRID + 3, 2).astype(float)
         clear = all(distance_to_edge(c, a, b) >= 0.3 for p in polygons for a, b in edges(p))
-        if clear and not any(inside(c, p) for p in polygons):
+        if clear and not any(Path(p).contains_point(c) for p in polygons):
             cameras.append(c)
     return np.array(cameras)
 

@@ -215,11 +215,8 @@ def visible_points(
     flat = float(jnp.finfo(u.dtype).eps) ** (1 / 3)
     flat = (jnp.abs(u) <= flat) | (jnp.abs(1.0 - jnp.abs(u)) <= flat)
 
-    def slopes_at(dx, _):
-        dg = cross(dq, dx.map(lambda a: a[:, None]))
-        return jnp.where(flat, 0.0, (dg - r * deflator_slope) / divisor)
-
-    dr = samples.at_nodes(slopes_at)
+    dg = samples.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[:, None])))
+    dr = jax.tree.map(lambda s: jnp.where(flat, 0.0, (s - r * deflator_slope) / divisor), dg)
 
     def crosses_own(r, dr, h, excess, deflator, reach, r_mid, undeflated):
         in_segment = deflated_depth(excess, deflator, reach, r, r_mid)
@@ -237,12 +234,8 @@ def visible_points(
     undeflated = None
     if pieces is not None:
         query_piece = jnp.take_along_axis(jnp.asarray(pieces), grid_cell(t_mid, samples), 1)
-        undeflated = (
-            g,
-            samples.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[:, None]))),
-            dot(dq, own_sight),
-            jnp.asarray(pieces)[:, None, :] == query_piece[:, :, None],
-        )
+        same_piece = jnp.asarray(pieces)[:, None, :] == query_piece[:, :, None]
+        undeflated = (g, dg, dot(dq, own_sight), same_piece)
     args = (r, dr, h, excess, deflator, reach_q, r_mid, undeflated)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
 

@@ -69,7 +69,7 @@ from ._reductions import fused_reduce, sorted_rows
 from ._roots import safe_divisor
 from ._scene import Scene
 from ._smoothed import Smoothed, smoothed_value
-from ._vec import Vec, cross, dot, norm, sub
+from ._vec import Vec, cross, dot, norm, scale, sub
 
 __all__ = ["VisibilityOptions", "VisibleIntervals", "visibility", "visible_intervals"]
 
@@ -343,7 +343,7 @@ def _closest_points(scene, cameras: Vec, samples: Samples, sense):
     chord = sub(samples.x.map(lambda a: a[:, 1:, None]), start)
     rel = sub(camera, start)
     along = jnp.clip(dot(rel, chord) / safe_divisor(dot(chord, chord)), 0.0, 1.0)
-    gap = sub(rel, Vec(along * chord.x, along * chord.y))
+    gap = sub(rel, scale(along, chord))
     cell = jnp.argmin(dot(gap, gap), axis=1)  # (m, k)
     along = jnp.take_along_axis(along, cell[:, None], axis=1)[:, 0]
     h = samples.t[1] - samples.t[0]
@@ -671,12 +671,12 @@ def valid_visibility(scene, cameras, objective, options) -> tuple[Array, Array]:
 def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | None = None):
     """Distance from each camera to each curve, negative inside the object: shape (k, m).
     Differentiable in the cameras (the gradient is the unit vector from the nearest point)."""
-    origin, scale = scene_frame(scene)  # (computed in the scene's frame, as Q)
-    scene = jax.lax.stop_gradient(scene).in_frame(origin, scale)
+    frame = scene_frame(scene)  # (computed in the scene's frame, as Q)
+    scene = jax.lax.stop_gradient(scene).in_frame(*frame)
     samples = sample(scene, grid or scene.grid_cells())
-    cameras = Vec.of(to_frame(jnp.asarray(cameras), origin, scale))
+    cameras = Vec.of(to_frame(jnp.asarray(cameras), *frame))
     distance, outward, _ = _closest_points(scene, cameras, samples, _sense(scene, samples))
-    return scale * jnp.where(outward >= 0, distance, -distance).T
+    return frame.scale * jnp.where(outward >= 0, distance, -distance).T
 
 
 class VisibleIntervals(eqx.Module):
