@@ -120,12 +120,52 @@ def crossover_function(t, args):
     return crossover_terms(objective, group_a, group_b, *scene.components(t))
 
 
-def tangency_times(scene, camera: Vec, samples: Samples, budget: int, iterations: int) -> Roots:
-    sight = sub(samples.x, jax.lax.stop_gradient(camera))
-    values = samples.at_nodes(lambda dx, _: cross(dx, sight)[:, None])
-    slopes = samples.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
-    scale = samples.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
-    brackets = grid_brackets(samples.t, values, slopes, budget, scale=scale)
+def tangency_times(
+    scene,
+    camera: Vec,
+    samples: Samples,
+    nearest: Float[Array, " m"],
+    budget: int,
+    iterations: int,
+) -> Roots:
+    """Tangency times on every curve: roots of F(t) = cross(x'(t), x(t) - C) (Eq. 5.21),
+    bracketed on the grid with one more node per curve, the camera's nearest point.
+
+    A camera close to a curve sees a short arc of it between two tangency times, which
+    can be closer together than the cubic Hermite interpolant of F on the grid resolves
+    (on the banana, a camera 1e-3 from a convex arc saw nothing). The camera's nearest
+    point x(t*) (t* = `nearest`, no derivative) lies on that arc, where x - C is normal
+    to the curve and F(t*) = +-|x'| |x - C| has the sign opposite to F at both times: as
+    a grid node, it puts them in cells of their own, each a sign change (and near an
+    inflection, where a third one lies close by, two in a cell of half the width).
+    Where t* is a grid node (a corner), the midpoint of its cell is the extra node."""
+    frozen, c0 = jax.lax.stop_gradient((scene, camera))
+    cells = samples.t.shape[0] - 1
+    cell = grid_cell(nearest, samples)[:, None]  # (m, 1)
+    inside = (nearest[:, None] * cells - cell) % 1 != 0
+    extra = jnp.where(inside, nearest[:, None], (cell + 0.5) / cells)
+    node = jnp.arange(cells + 2)[None]  # of the grid with the extra node, node c + 1
+    from_grid = node - (node > cell + 1)  # (m, N + 2): the grid node each other one copies
+
+    def with_extra(at_nodes, at_extra):  # (m | 1, N + 1), (m, 1) -> (m, 1, N + 2)
+        at_nodes = jnp.broadcast_to(at_nodes, (extra.shape[0], cells + 1))
+        copied = jnp.take_along_axis(at_nodes, from_grid, 1)
+        return jnp.where(node == cell + 1, at_extra, copied)[:, None]
+
+    x, dx, ddx = frozen.components(extra)  # (m, 1)
+    sight = sub(samples.x, c0)
+    extra_sight = sub(x, c0)
+
+    def at_nodes(fn):  # fn(x', x'', x - C) on the grid with the extra node
+        return samples.at_nodes(
+            lambda dx_n, ddx_n: with_extra(fn(dx_n, ddx_n, sight), fn(dx, ddx, extra_sight))
+        )
+
+    values = at_nodes(lambda dx, _, sight: cross(dx, sight))
+    slopes = at_nodes(lambda _, ddx, sight: cross(ddx, sight))
+    scale = at_nodes(lambda dx, _, sight: norm(dx) * norm(sight))
+    t_nodes = with_extra(samples.t[None], extra)
+    brackets = grid_brackets(t_nodes, values, slopes, budget, scale=scale)
     t, valid = solve_roots(
         tangency_function, (scene, camera), brackets, iterations, 1.0, scene.costly_evaluation()
     )

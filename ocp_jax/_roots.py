@@ -95,6 +95,11 @@ def _slot_bounds(f0, f1, d0, d1, h, second, probe=None):
     (its value interpolated), or at the `probe` (fraction, exact value or NaN for none)
     where F there has the sign opposite to both ends."""
     s, p, turning = hermite_extremum(f0, f1, d0, d1, h)
+    # F changing sign between the ends is one bracket, exact: split at the interpolant's
+    # extremum, whose value is only interpolated, its root could lie in the slot without
+    # the sign change (the interpolant has one root in such a cell, as F mostly has).
+    single = f0 * f1 < 0
+    s, p, turning = jnp.where(single, 1.0, s), jnp.where(single, f1, p), turning & ~single
     reveals = False
     if probe is not None:
         at, value = probe
@@ -138,7 +143,7 @@ def cell_ends(nodes):
 
 
 def grid_brackets(
-    t_nodes: Float[Array, " n1"],
+    t_nodes: Float[Array, "*lines n1"],
     values,
     slopes,
     budget: int,
@@ -150,7 +155,8 @@ def grid_brackets(
     packed over lines and cells into `budget` slots per batch element.
 
     **Arguments:**
-    - `t_nodes`: the grid t_0 < ... < t_N.
+    - `t_nodes`: the grid t_0 < ... < t_N, shared by all lines or one per line (an
+      array like `values`).
     - `values`, `slopes`: F and dF/dt at the nodes, arrays (*batch, lines, N + 1), or
       pairs of them (right and left limits, see `cell_ends`) where F or F' jump.
     - `budget`: R, the number of root slots.
@@ -164,7 +170,7 @@ def grid_brackets(
       opposite to both ends, the cell holds a pair of roots, one on either side of it,
       however close together (`_events.grazing_probes`): the cell is split there.
     """
-    h = jnp.diff(t_nodes)
+    h = jnp.diff(t_nodes, axis=-1)
     f0, f1 = cell_ends(values)
     d0, d1 = cell_ends(slopes)
     h_cells = jnp.broadcast_to(h, f0.shape)
@@ -192,7 +198,7 @@ def grid_brackets(
     # Recompute the bracket of each packed slot from its cell's values only, gathered
     # at once (XLA's CPU backend launches a kernel per gather).
     cell_index = index // 2
-    columns = [f0, f1, d0, d1, h_cells, t_nodes[:-1]]
+    columns = [f0, f1, d0, d1, h_cells, t_nodes[..., :-1]]
     if probes is not None:
         columns += list(probes)
     table = jnp.stack(jnp.broadcast_arrays(*columns), -1)

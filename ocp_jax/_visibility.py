@@ -247,8 +247,11 @@ def _interval_budget(option: int | None, fixed: int, slots: int) -> int:
 
 
 def _camera_partition(
-    scene, pose: Camera, samples, sense, options, one_thread: bool
+    scene, pose: Camera, samples, sense, nearest, options, one_thread: bool
 ) -> CameraPartition:
+    """One camera's events on every curve and which intervals between them it sees
+    (`nearest`: the camera's nearest points t* on the curves, extra nodes of the
+    tangency search)."""
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
     frozen = jax.lax.stop_gradient(pose)  # the visibility decisions carry no derivative
@@ -256,7 +259,7 @@ def _camera_partition(
     if conics is not None:
         tangents = conic_tangency_times(conics, camera)
     else:
-        tangents = tangency_times(scene, camera, samples, options.max_tangents, iters)
+        tangents = tangency_times(scene, camera, samples, nearest, options.max_tangents, iters)
     sources = tangency_points(scene, tangents)
     probes = None if conics is not None else grazing_probes(camera, samples, tangents, sources)
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
@@ -423,9 +426,10 @@ def _events(scene: Scene, poses: Camera, objective, options: VisibilityOptions) 
     cameras = Vec.of(poses.position)
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = _sense(scene, samples)
+    nearest = _nearest_points(scene, cameras, samples, sense)
     partition = functools.partial(_camera_partition, one_thread=_one_thread(cameras))
-    partitions = jax.vmap(partition, in_axes=(None, 0, None, None, None))(
-        scene, poses, samples, sense, options
+    partitions = jax.vmap(partition, in_axes=(None, 0, None, None, 1, None))(
+        scene, poses, samples, sense, nearest.t, options
     )
     groups = camera_groups(objective, cameras.x.shape[0])
     crossovers = None
@@ -440,7 +444,6 @@ def _events(scene: Scene, poses: Camera, objective, options: VisibilityOptions) 
             options.max_crossovers,
             options.newton_iterations,
         )
-    nearest = _nearest_points(scene, cameras, samples, sense)
     return Events(partitions, groups, crossovers, samples, sense, cameras, poses, nearest)
 
 

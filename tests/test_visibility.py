@@ -54,6 +54,24 @@ def test_grid_brackets_under_rank_promotion_raise():
     assert int(brackets.count) == 1
 
 
+def test_a_sign_change_across_a_cell_is_never_split_away():
+    """F = -1 + 2 (1 + 33 t) exp(-30 t) on one cell: F(0) = 1, F'(0) = 6, F(1) = -1,
+    F'(1) ~ -1e-11, one root near t = 0.06. The Hermite interpolant's extremum lies at
+    s = 0.2 with the value 1.56 (F there is -0.9): split there, the sign change fell in
+    [0.2, 1], where F has none, and the root was lost (valid False)."""
+
+    def fn(t, _):
+        decay = jnp.exp(-30.0 * t)
+        return -1.0 + 2.0 * (1.0 + 33.0 * t) * decay, 2.0 * (3.0 - 990.0 * t) * decay, 1.0
+
+    nodes = jnp.array([0.0, 1.0])
+    values, slopes, _ = fn(nodes, None)
+    brackets = _roots.grid_brackets(nodes, values[None], slopes[None], 2)
+    t, valid = _roots.solve_roots(fn, None, brackets, OPTIONS.newton_iterations, 1.0, False)
+    assert int(brackets.count) == 1 and bool(valid[0])
+    assert abs(float(fn(t[0], None)[0])) < 1e-14 and 0.05 < float(t[0]) < 0.07
+
+
 # ===========================================================================
 # closed forms: one circle
 # ===========================================================================
@@ -151,6 +169,30 @@ def test_close_camera_in_the_middle_of_a_panel_of_the_banana():
     q = jax.jit(lambda c: ocp.visibility(H.BANANA, c, FS))(jnp.asarray(cam))
     ref = reference_visibility(H.to_reference(H.BANANA), cam, "foreshortened")
     assert rel(q, ref) < 1e-8
+
+
+@functools.cache
+def banana_visible_length():
+    """VisibleLength of the banana for a batch of single cameras, jitted once."""
+    return jax.jit(jax.vmap(lambda c: ocp.visibility(H.BANANA, c[None], VL)))
+
+
+def test_a_camera_beside_the_banana_sees_the_arc_in_front_of_it():
+    """A camera close to a curve sees a short arc between two tangency times, closer
+    together than the grid resolves: the camera's nearest point, where F = cross(x', x -
+    C) has the sign opposite to both ends of its cell, is an extra node of the tangency
+    search. Before it, cameras 1e-4 to 1e-3 (2e-6 to 2e-5 of the banana's length) from
+    these convex arcs saw nothing (VisibleLength 0, the reference 0.05 to 0.45)."""
+    banana = H.BANANA.curves[0]
+    cams = []
+    for t in (0.0165, 0.2698, 0.9808):
+        x, dx = (np.asarray(a) for a in banana.derivatives(t)[:2])
+        normal = np.array([dx[1], -dx[0]]) / np.linalg.norm(dx)  # outward: it runs ccw
+        cams += [x + d * normal for d in (1e-3, 3e-4, 1e-4)]
+    q = banana_visible_length()(jnp.asarray(cams))
+    ref = [reference_visibility(H.to_reference(H.BANANA), c[None], "visible_length") for c in cams]
+    assert min(ref) > 0.04
+    assert np.max(np.abs(np.asarray(q) / np.array(ref) - 1)) < 1e-9
 
 
 def test_gradient_where_a_tangency_time_meets_a_panel_breakpoint():
@@ -806,12 +848,24 @@ def test_two_cameras_on_a_circle_closed_forms():
 # ===========================================================================
 # events: the implicit-function derivatives against the thesis's closed forms
 # ===========================================================================
+def tangency_times(scene, camera: Vec, samples):
+    """The camera's tangency times, as visibility computes them (its nearest point on
+    each curve an extra node of the grid)."""
+    frozen = jax.lax.stop_gradient(scene)
+    sense = _visibility._sense(frozen, samples)
+    cameras = camera.map(lambda a: jnp.reshape(a, (1,)))
+    nearest = _visibility._nearest_points(frozen, cameras, samples, sense).t[:, 0]
+    return _events.tangency_times(
+        scene, camera, samples, nearest, OPTIONS.max_tangents, OPTIONS.newton_iterations
+    )
+
+
 def _events_fn(scene, camera):
     """The tangency and shadow times of one camera, as visibility computes them."""
     samples = _events.sample(jax.lax.stop_gradient(scene), grid_cells(scene))
     cam = Vec(camera[0], camera[1])
     iters = OPTIONS.newton_iterations
-    tan = _events.tangency_times(scene, cam, samples, OPTIONS.max_tangents, iters)
+    tan = tangency_times(scene, cam, samples)
     points = _events.tangency_points(scene, tan)
     probes = _events.grazing_probes(cam, samples, tan, points)
     sh = _events.shadow_times(scene, cam, samples, points, probes, OPTIONS.max_shadows, iters)
@@ -971,7 +1025,7 @@ def _conic_events(flat, camera, closed: bool):
     if closed:
         tan = _conics.conic_tangency_times(scene.conic_frames(), cam)
     else:
-        tan = _events.tangency_times(scene, cam, samples, OPTIONS.max_tangents, iters)
+        tan = tangency_times(scene, cam, samples)
     points = _events.tangency_points(scene, tan)
     sources = _events.join_sources(points, _events.wedge_edges(cam, WEDGE))
     if closed:
@@ -1101,9 +1155,7 @@ def test_conics_seen_through_wedges_and_ranges_match_the_reference():
 def tangency_probes(scene, camera, samples):
     """The grazing probes of `visible_points` from the camera's tangency times on the grid
     (as visibility computes them for every scene but conics)."""
-    tangents = _events.tangency_times(
-        scene, camera, samples, OPTIONS.max_tangents, OPTIONS.newton_iterations
-    )
+    tangents = tangency_times(scene, camera, samples)
     points = _events.tangency_points(scene, tangents)
     return _events.grazing_probes(camera, samples, tangents, points)
 
