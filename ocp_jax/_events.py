@@ -152,7 +152,8 @@ def tangency_times(
         copied = jnp.take_along_axis(at_nodes, from_grid, 1)
         return jnp.where(node == cell + 1, at_extra, copied)[:, None]
 
-    x, dx, ddx = frozen.components(extra)  # (m, 1)
+    # Computed once (see `materialize`), not in every consumer of the nodes' F, F', scale.
+    x, dx, ddx = materialize(frozen.components(extra), scene)  # (m, 1)
     sight = sub(samples.x, c0)
     extra_sight = sub(x, c0)
 
