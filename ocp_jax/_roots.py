@@ -75,18 +75,30 @@ def _hermite_coefficients(f0, f1, d0, d1, h):
 
 
 def hermite_extremum(f0, f1, d0, d1, h):
-    """Extremum of the cubic Hermite interpolant on each cell, as a fraction s in [0, 1]
-    of the cell, and the interpolant's value there. Where F' does not change sign in the
-    cell, s = 1 and the value is f1."""
+    """The extremum of the cubic Hermite interpolant p on each cell that can show a pair
+    of roots, as a fraction s in [0, 1] of the cell, and p there (`turning`): where F'
+    changes sign in the cell, p's one extremum there; where p has two there (F' of one
+    sign at both ends, dipping between: a pair right beside a root of F'), the one where
+    p has the sign opposite to f0, if either has (both cannot, for ends of one sign).
+    Elsewhere s = 1 and the value is f1."""
     a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
-    # p'(s) = A s^2 + B s + c has exactly one root in (0, 1) when d0 d1 < 0.
-    A, B, c = 3.0 * a3, 2.0 * a2, a1
-    r_small, r_large = quadratic_roots(A, B, c, jnp.maximum(B * B - 4.0 * A * c, 0.0))
-    s = jnp.where((r_small >= 0) & (r_small <= 1), r_small, r_large)
-    turning = d0 * d1 < 0
-    s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)
-    value = ((a3 * s + a2) * s + a1) * s + f0
-    return s, jnp.where(turning, value, f1), turning
+    A, B, c = 3.0 * a3, 2.0 * a2, a1  # p'(s) = A s^2 + B s + c
+    disc = B * B - 4.0 * A * c
+    first, second = quadratic_roots(A, B, c, jnp.maximum(disc, 0.0))
+
+    def p(s):
+        return ((a3 * s + a2) * s + a1) * s + f0
+
+    def inside(s):
+        return (s >= 0) & (s <= 1)
+
+    one = d0 * d1 < 0  # exactly one root of p' in (0, 1)
+    s_one = jnp.clip(jnp.where(inside(first), first, second), 0.0, 1.0)
+    s_two = jnp.where(p(first) * f0 < 0, first, second)
+    two = (d0 * d1 > 0) & (disc > 0) & inside(first) & inside(second) & (p(s_two) * f0 < 0)
+    turning = one | two
+    s = jnp.where(one, s_one, jnp.where(two, s_two, 1.0))
+    return s, jnp.where(turning, p(s), f1), turning
 
 
 def _slot_bounds(f0, f1, d0, d1, h, second, probe=None):
