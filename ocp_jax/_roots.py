@@ -92,13 +92,15 @@ def hermite_extremum(f0, f1, d0, d1, h):
     def inside(s):
         return (s >= 0) & (s <= 1)
 
+    p_first, p_second = p(first), p(second)
     one = d0 * d1 < 0  # exactly one root of p' in (0, 1)
-    s_one = jnp.clip(jnp.where(inside(first), first, second), 0.0, 1.0)
-    s_two = jnp.where(p(first) * f0 < 0, first, second)
-    two = (d0 * d1 > 0) & (disc > 0) & inside(first) & inside(second) & (p(s_two) * f0 < 0)
+    first_in = inside(first)
+    pick = jnp.where(one, first_in, p_first * f0 < 0)
+    s, value = jnp.where(pick, first, second), jnp.where(pick, p_first, p_second)
+    two = (d0 * d1 > 0) & (disc > 0) & first_in & inside(second) & (value * f0 < 0)
     turning = one | two
-    s = jnp.where(one, s_one, jnp.where(two, s_two, 1.0))
-    return s, jnp.where(turning, p(s), f1), turning
+    s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)
+    return s, jnp.where(turning, value, f1), turning
 
 
 def _slot_bounds(f0, f1, d0, d1, h, second, probe=None):
