@@ -108,7 +108,11 @@ class VisibilityOptions(eqx.Module):
       there (1e-11 at 1.2 r from a circle of radius r, 2e-8 at 1.05 r, 5e-6 at 1.01 r):
       32 nodes bring these to 1e-15, 1e-15 and 7e-11. A camera closer to a curve than
       (2.5 / quadrature)^2 of its radius raises an error (for camera-dependent q).
-    - `newton_iterations`: safeguarded Newton steps per root.
+    - `newton_iterations`: the most safeguarded Newton steps per root (the search stops
+      once every root is final, mostly after 2-4). A camera within 1e-7 of the scene's
+      size from a curve needs up to 12: its nearest point splits a cell, and a root right
+      beside that point is reached by bisecting the long part (with 8, VisibleLength of
+      the banana from 1e-5 was off by up to 4e-5, `benchmarks/beside_curves.py`).
     """
 
     grid: int | None = eqx.field(static=True, default=None)
@@ -119,7 +123,7 @@ class VisibilityOptions(eqx.Module):
     max_intervals: int | None = eqx.field(static=True, default=None)
     max_camera_intervals: int | None = eqx.field(static=True, default=None)
     quadrature: int = eqx.field(static=True, default=16)
-    newton_iterations: int = eqx.field(static=True, default=8)
+    newton_iterations: int = eqx.field(static=True, default=16)
 
     def __check_init__(self):
         for name in (
