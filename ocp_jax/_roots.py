@@ -83,24 +83,22 @@ def hermite_extremum(f0, f1, d0, d1, h):
     Elsewhere s = 1 and the value is f1."""
     a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
     A, B, c = 3.0 * a3, 2.0 * a2, a1  # p'(s) = A s^2 + B s + c
-    disc = B * B - 4.0 * A * c
-    first, second = quadratic_roots(A, B, c, jnp.maximum(disc, 0.0))
+    first, second = quadratic_roots(A, B, c, jnp.maximum(B * B - 4.0 * A * c, 0.0))
 
     def p(s):
         return ((a3 * s + a2) * s + a1) * s + f0
 
-    def inside(s):
-        return (s >= 0) & (s <= 1)
-
-    p_first, p_second = p(first), p(second)
     one = d0 * d1 < 0  # exactly one root of p' in (0, 1)
-    first_in = inside(first)
-    pick = jnp.where(one, first_in, p_first * f0 < 0)
-    s, value = jnp.where(pick, first, second), jnp.where(pick, p_first, p_second)
-    two = (d0 * d1 > 0) & (disc > 0) & first_in & inside(second) & (value * f0 < 0)
+    first_in = (first >= 0) & (first <= 1)
+    # Of two: p's minimum where f0 > 0 (p'' > 0 there), its maximum where f0 < 0.
+    dips = (3.0 * a3 * first + a2) * f0 > 0
+    s = jnp.clip(jnp.where(jnp.where(one, first_in, dips), first, second), 0.0, 1.0)
+    value = p(s)
+    # (p' of one sign at both ends has 0 or 2 roots in (0, 1): with one, the other too;
+    # a double root is no extremum, and p, monotone, keeps the sign of its ends)
+    two = (d0 * d1 > 0) & first_in & (value * f0 < 0)
     turning = one | two
-    s = jnp.where(turning, jnp.clip(s, 0.0, 1.0), 1.0)
-    return s, jnp.where(turning, value, f1), turning
+    return jnp.where(turning, s, 1.0), jnp.where(turning, value, f1), turning
 
 
 def _slot_bounds(f0, f1, d0, d1, h, second, probe=None):
@@ -188,8 +186,7 @@ def grid_brackets(
     f0, f1 = cell_ends(values)
     d0, d1 = cell_ends(slopes)
     h_cells = jnp.broadcast_to(h, f0.shape)
-    first = _slot_bounds(f0, f1, d0, d1, h_cells, False, probes)[:4]
-    second = _slot_bounds(f0, f1, d0, d1, h_cells, True, probes)[:4]
+    split = _slot_bounds(f0, f1, d0, d1, h_cells, False, probes)[3]  # F where they meet
     # The two slots of each cell chosen by a select on the slot's index, not stacked: XLA's
     # CPU backend emits a concatenation as a branch on the index of every element, which
     # keeps the kernel that computes the mask (and the values it fuses) from being
@@ -197,8 +194,8 @@ def grid_brackets(
     slot = jnp.arange(2)
     has_root = jnp.where(
         slot == 0,
-        ((first[2] * first[3] < 0) | (f0 == 0))[..., None],
-        (second[2] * second[3] < 0)[..., None],
+        ((f0 * split < 0) | (f0 == 0))[..., None],
+        (split * f1 < 0)[..., None],
     )
     if keep is not None:
         has_root = has_root & keep[..., None]
