@@ -27,32 +27,20 @@ import ocp_jax as ocp  # noqa: E402
 from ocp_jax._visibility import valid_visibility  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-from helpers import to_reference  # noqa: E402
-from reference import reference_visibility  # noqa: E402
+from helpers import outward_normals, to_reference  # noqa: E402
+from reference import eval_curve, reference_visibility  # noqa: E402
 
 DISTANCES = (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
 
 
-def points_on(scene: ocp.Scene, t: np.ndarray):
-    """x and x' of every curve i at the parameters t[i], arrays (m, n, 2)."""
-    x, dx, _ = scene.components(jnp.asarray(t))
-    return np.asarray(x.stack()), np.asarray(dx.stack())
-
-
-def dense_points(scene: ocp.Scene) -> np.ndarray:
-    return points_on(scene, np.tile(np.linspace(0.0, 1.0, 4097), (len(scene), 1)))[0]
-
-
-def cameras_beside(scene: ocp.Scene, points: int, distance: float, rng) -> np.ndarray:
-    """Cameras at `distance` along the normal on the free side (outside objects, inside
-    rooms) of random points of every curve, shape (m points, 2)."""
-    m = len(scene)
-    dense = dense_points(scene)
-    area = np.sum(dense[:, :-1, 0] * dense[:, 1:, 1] - dense[:, :-1, 1] * dense[:, 1:, 0], 1)
-    x, dx = points_on(scene, rng.uniform(0.0, 1.0, (m, points)))
-    right = np.stack([dx[..., 1], -dx[..., 0]], -1) / np.linalg.norm(dx, axis=-1)[..., None]
-    free = (np.sign(area) * np.asarray(scene.sides()))[:, None, None]
-    return (x + distance * free * right).reshape(-1, 2)
+def cameras_beside(reference: list[dict], sides, points: int, distance: float, rng):
+    """Cameras at `distance` along the normal on the free side (outside objects, `sides`
+    +1; inside rooms, -1) of random points of every curve, shape (m points, 2)."""
+    cameras = []
+    for spec, side in zip(reference, sides):
+        t = rng.uniform(0.0, 1.0, points)
+        cameras.append(eval_curve(spec, t)[0] + distance * side * outward_normals(spec, t))
+    return np.concatenate(cameras)
 
 
 def main():
@@ -67,14 +55,17 @@ def main():
     value = jax.jit(
         jax.vmap(lambda c: valid_visibility(scene, c[None], ocp.VisibleLength(), options))
     )
-    size = float(np.max(np.ptp(dense_points(scene).reshape(-1, 2), 0)))
+    t = np.linspace(0.0, 1.0, 4097)
+    dense = np.concatenate([eval_curve(spec, t)[0] for spec in reference])
+    size = float(np.max(np.ptp(dense, 0)))
     print(f"{args.scene}: {len(scene)} curves, extent {size:.3g}, {args.points} points per curve")
     print(
         f"{'d':>8} {'d / extent':>10} {'cameras':>8} {'refused':>8} {'largest':>9}"
         f" {'> 1e-7':>7} {'none seen':>9}"
     )
     for distance in DISTANCES:
-        cams = cameras_beside(scene, args.points, distance, np.random.default_rng(args.seed))
+        rng = np.random.default_rng(args.seed)
+        cams = cameras_beside(reference, scene.sides(), args.points, distance, rng)
         q, valid = (np.asarray(a) for a in value(jnp.asarray(cams)))
         errors, missed = [], 0
         for c, qc in zip(cams[valid], q[valid]):
@@ -84,7 +75,7 @@ def main():
         errors = np.array(errors)
         print(
             f"{distance:8.0e} {distance / size:10.1e} {len(cams):8d} {int((~valid).sum()):8d}"
-            f" {errors.max():9.1e} {int((errors > 1e-7).sum()):7d} {missed:9d}",
+            f" {max(errors, default=np.nan):9.1e} {int((errors > 1e-7).sum()):7d} {missed:9d}",
             flush=True,
         )
 

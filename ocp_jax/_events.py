@@ -157,14 +157,14 @@ def tangency_times(
     sight = sub(samples.x, c0)
     extra_sight = sub(x, c0)
 
-    def at_nodes(fn):  # fn(x', x'', x - C) on the grid with the extra node
+    def on_grid(fn):  # fn(x', x'', x - C) at the nodes, the extra one included
         return samples.at_nodes(
             lambda dx_n, ddx_n: with_extra(fn(dx_n, ddx_n, sight), fn(dx, ddx, extra_sight))
         )
 
-    values = at_nodes(lambda dx, _, sight: cross(dx, sight))
-    slopes = at_nodes(lambda _, ddx, sight: cross(ddx, sight))
-    scale = at_nodes(lambda dx, _, sight: norm(dx) * norm(sight))
+    values = on_grid(lambda dx, _, sight: cross(dx, sight))
+    slopes = on_grid(lambda _, ddx, sight: cross(ddx, sight))
+    scale = on_grid(lambda dx, _, sight: norm(dx) * norm(sight))
     t_nodes = with_extra(samples.t[None], extra)
     brackets = grid_brackets(t_nodes, values, slopes, budget, scale=scale)
     t, valid = solve_roots(

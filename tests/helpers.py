@@ -240,6 +240,17 @@ def _cross(a, b):
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
+def outward_normals(spec: dict, t) -> np.ndarray:
+    """Unit outward normals of a reference curve at the parameters `t`: (y', -x') / |x'|
+    turned by the orientation of its dense polygon (shoelace area)."""
+    from reference import eval_curve
+
+    x = eval_curve(spec, np.arange(20000) / 20000)[0]
+    ccw = np.sign(np.sum(x[:, 0] * np.roll(x[:, 1], -1) - np.roll(x[:, 0], -1) * x[:, 1]))
+    dx = eval_curve(spec, t)[1]
+    return ccw * np.stack([dx[..., 1], -dx[..., 0]], -1) / np.linalg.norm(dx, axis=-1)[..., None]
+
+
 def inflections(spec: dict, n: int = 20000) -> np.ndarray:
     """Parameters where the curvature cross(x', x'') changes sign (bisected)."""
     from reference import eval_curve
