@@ -1,12 +1,15 @@
 """VisibleLength of cameras right beside a curve, against the NumPy reference.
 
-    python benchmarks/beside_curves.py [--scene banana] [--points 60] [--seed 0]
+    python benchmarks/beside_curves.py [--scene banana|three_objects|blobs|room]
+                                       [--points 60] [--seed 0]
 
 A camera close to a curve sees a short arc of it between two tangency times that can
-lie closer together than the grid of the root search resolves (the camera's nearest
-point is an extra node of that search since 2026-12-04). For cameras at distance d along
-the outward normal of `--points` random points of each curve of a built-in scene
-(`ocp.scenes`), prints per d: the largest relative difference of VisibleLength from
+lie closer together than the grid of the root search resolves, and lines of sight that
+cross the curve again just behind it, at a depth the grid's interpolation misjudges (the
+camera's nearest point is a node of the tangency search since 2026-12-04, and of the
+occlusion test since 2026-12-05). For cameras at distance d along the normal on the free
+side of `--points` random points of each curve of a built-in scene (`ocp.scenes`; blobs:
+three of them), prints per d: the largest relative difference of VisibleLength from
 `tests/reference.py`, how many differ by more than 1e-7, and how many the engine sees
 nothing of where the reference sees an arc. Cameras the engine refuses (inside another
 object, or on a curve: closer than sqrt(eps) times the scene's size) are counted apart.
@@ -31,6 +34,12 @@ from helpers import outward_normals, to_reference  # noqa: E402
 from reference import eval_curve, reference_visibility  # noqa: E402
 
 DISTANCES = (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
+SCENES = {
+    "banana": ocp.scenes.banana,
+    "three_objects": ocp.scenes.three_objects,
+    "blobs": lambda: ocp.scenes.blobs(3),
+    "room": ocp.scenes.room,
+}
 
 
 def cameras_beside(reference: list[dict], sides, points: int, distance: float, rng):
@@ -45,12 +54,13 @@ def cameras_beside(reference: list[dict], sides, points: int, distance: float, r
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scene", default="banana", help="a function of ocp.scenes")
+    parser.add_argument("--scene", default="banana", choices=SCENES)
     parser.add_argument("--points", type=int, default=60)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    scene = getattr(ocp.scenes, args.scene)()
+    scene = SCENES[args.scene]()
     reference = to_reference(scene)
+    observed = list(scene.observed())  # a room's walls occlude but are not integrated
     options = ocp.VisibilityOptions()
     value = jax.jit(
         jax.vmap(lambda c: valid_visibility(scene, c[None], ocp.VisibleLength(), options))
@@ -69,7 +79,7 @@ def main():
         q, valid = (np.asarray(a) for a in value(jnp.asarray(cams)))
         errors, missed = [], 0
         for c, qc in zip(cams[valid], q[valid]):
-            ref = reference_visibility(reference, c[None], "visible_length")
+            ref = reference_visibility(reference, c[None], "visible_length", observed=observed)
             errors.append(abs(qc - ref) / abs(ref))
             missed += (qc == 0) & (ref > 0)
         errors = np.array(errors)

@@ -35,9 +35,10 @@ class Samples(NamedTuple):
     """Every curve sampled on the grid t_0 = 0 < ... < t_N = 1 (camera independent);
     `x`, `dx`, `ddx` have arrays of shape (m, N + 1). Where a curve has corners (grid
     nodes), `dx`, `ddx` are the right limits and `dx_end`, `ddx_end` the left limits
-    (None for smooth scenes)."""
+    (None for smooth scenes). A camera's grid (`with_nearest_node`) has one more node on
+    every curve, its `t` an array (m, N + 2) as well."""
 
-    t: Float[Array, " n1"]
+    t: Float[Array, "*m n1"]
     x: Vec
     dx: Vec
     ddx: Vec
@@ -120,53 +121,62 @@ def crossover_function(t, args):
     return crossover_terms(objective, group_a, group_b, *scene.components(t))
 
 
-def tangency_times(
-    scene,
-    camera: Vec,
-    samples: Samples,
-    nearest: Float[Array, " m"],
-    budget: int,
-    iterations: int,
-) -> Roots:
-    """Tangency times on every curve: roots of F(t) = cross(x'(t), x(t) - C) (Eq. 5.21),
-    bracketed on the grid with one more node per curve, the camera's nearest point.
+def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> Samples:
+    """One camera's grid: the samples with one more node per curve, the camera's nearest
+    point t* = `nearest` (no derivative), so that `t` and the components are arrays
+    (m, N + 2). Where t* is a grid node (a corner), the midpoint of its cell is the node.
 
-    A camera close to a curve sees a short arc of it between two tangency times, which
-    can be closer together than the cubic Hermite interpolant of F on the grid resolves
-    (on the banana, a camera 1e-3 from a convex arc saw nothing). The camera's nearest
-    point x(t*) (t* = `nearest`, no derivative) lies on that arc, where x - C is normal
-    to the curve and F(t*) = +-|x'| |x - C| has the sign opposite to F at both times: as
-    a grid node, it puts them in cells of their own, each a sign change (and near an
-    inflection, where a third one lies close by, two in a cell of half the width).
-    Where t* is a grid node (a corner), the midpoint of its cell is the extra node."""
-    frozen, c0 = jax.lax.stop_gradient((scene, camera))
+    Close to the camera a curve bends more between the grid's nodes than the camera's
+    distance to it, and interpolation from them misjudges what is near the camera: the
+    camera sees a short arc between two tangency times that the cubic Hermite interpolant
+    of F = cross(x', x - C) does not resolve (on the banana, a camera 1e-3 from a convex
+    arc saw nothing), and the depth of a crossing just behind the camera interpolates to
+    one in front of it (beside the kidney, a line of sight that left the curve behind the
+    camera was taken for blocked). At t*, where x - C is normal to the curve,
+    F = +-|x'| |x - C| has the sign opposite to F at both tangency times (as a node it
+    puts each in a cell of its own, and near an inflection, where a third one lies close
+    by, two in a cell of half the width), and a line of sight from C crosses the curve
+    within |x - C| / |sin| of it (on a cell beside the node, the depth's interpolation
+    error is then O(|x - C|))."""
+    frozen = jax.lax.stop_gradient(scene)
     cells = samples.t.shape[0] - 1
     cell = grid_cell(nearest, samples)[:, None]  # (m, 1)
     inside = (nearest[:, None] * cells - cell) % 1 != 0
     extra = jnp.where(inside, nearest[:, None], (cell + 0.5) / cells)
     node = jnp.arange(cells + 2)[None]  # of the grid with the extra node, node c + 1
     from_grid = node - (node > cell + 1)  # (m, N + 2): the grid node each other one copies
+    x, dx, ddx = frozen.components(extra)  # (m, 1)
 
-    def with_extra(at_nodes, at_extra):  # (m | 1, N + 1), (m, 1) -> (m, 1, N + 2)
+    def with_extra(at_nodes, at_extra):  # (m | 1, N + 1), (m, 1) -> (m, N + 2)
         at_nodes = jnp.broadcast_to(at_nodes, (extra.shape[0], cells + 1))
         copied = jnp.take_along_axis(at_nodes, from_grid, 1)
-        return jnp.where(node == cell + 1, at_extra, copied)[:, None]
+        return jnp.where(node == cell + 1, at_extra, copied)
 
-    # Computed once (see `materialize`), not in every consumer of the nodes' F, F', scale.
-    x, dx, ddx = materialize(frozen.components(extra), scene)  # (m, 1)
-    sight = sub(samples.x, c0)
-    extra_sight = sub(x, c0)
-
-    def on_grid(fn):  # fn(x', x'', x - C) at the nodes, the extra one included
-        return samples.at_nodes(
-            lambda dx_n, ddx_n: with_extra(fn(dx_n, ddx_n, sight), fn(dx, ddx, extra_sight))
+    grid = Samples(
+        with_extra(samples.t[None], extra),
+        Vec(with_extra(samples.x.x, x.x), with_extra(samples.x.y, x.y)),
+        Vec(with_extra(samples.dx.x, dx.x), with_extra(samples.dx.y, dx.y)),
+        Vec(with_extra(samples.ddx.x, ddx.x), with_extra(samples.ddx.y, ddx.y)),
+    )
+    if samples.dx_end is not None:  # the extra node is no corner: its left limits are x'
+        grid = grid._replace(
+            dx_end=Vec(with_extra(samples.dx_end.x, dx.x), with_extra(samples.dx_end.y, dx.y)),
+            ddx_end=Vec(
+                with_extra(samples.ddx_end.x, ddx.x), with_extra(samples.ddx_end.y, ddx.y)
+            ),
         )
+    # Computed once (see `materialize`), not in every consumer of the nodes.
+    return materialize(grid, scene)
 
-    values = on_grid(lambda dx, _, sight: cross(dx, sight))
-    slopes = on_grid(lambda _, ddx, sight: cross(ddx, sight))
-    scale = on_grid(lambda dx, _, sight: norm(dx) * norm(sight))
-    t_nodes = with_extra(samples.t[None], extra)
-    brackets = grid_brackets(t_nodes, values, slopes, budget, scale=scale)
+
+def tangency_times(scene, camera: Vec, grid: Samples, budget: int, iterations: int) -> Roots:
+    """Tangency times on every curve: roots of F(t) = cross(x'(t), x(t) - C) (Eq. 5.21),
+    bracketed on the camera's grid (`with_nearest_node`)."""
+    sight = sub(grid.x, jax.lax.stop_gradient(camera))
+    values = grid.at_nodes(lambda dx, _: cross(dx, sight)[:, None])
+    slopes = grid.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
+    scale = grid.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
+    brackets = grid_brackets(grid.t[:, None], values, slopes, budget, scale=scale)
     t, valid = solve_roots(
         tangency_function, (scene, camera), brackets, iterations, 1.0, scene.costly_evaluation()
     )
@@ -295,9 +305,23 @@ class GrazingProbes(NamedTuple):
 
 def grid_cell(t, samples: Samples) -> Int[Array, "..."]:
     """The index of the grid cell [t_c, t_c+1) that holds each t in [0, 1] (t = 1 in the
-    last)."""
-    cells = samples.t.shape[0] - 1
+    last); on a camera's grid (`with_nearest_node`), t has a row per curve."""
+    if samples.t.ndim == 1:
+        return _uniform_cell(t, samples.t.shape[0] - 1)
+    # The cell c of the uniform grid, or the next where the extra node lies before t.
+    cell = _uniform_cell(t, samples.t.shape[1] - 2)
+    return cell + (jnp.take_along_axis(samples.t, cell + 1, 1) <= t)
+
+
+def _uniform_cell(t, cells: int):
     return jnp.clip(jnp.floor(t * cells).astype(jnp.int32), 0, cells - 1)
+
+
+def grid_pieces(pieces: np.ndarray, grid: Samples) -> Int[Array, "m n"]:
+    """The smooth piece of every cell of a camera's grid (`with_nearest_node`), from
+    those of the uniform grid's cells (`Scene.pieces`)."""
+    middle = 0.5 * (grid.t[:, :-1] + grid.t[:, 1:])
+    return jnp.take_along_axis(jnp.asarray(pieces), _uniform_cell(middle, pieces.shape[1]), 1)
 
 
 def grazing_probes(

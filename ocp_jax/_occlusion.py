@@ -8,8 +8,11 @@ one test at its midpoint m = x_i(t_m) decides it:
 2. **Occluders.** Otherwise m is hidden iff some curve crosses the open segment (C, m). For
    the ray direction d = m - C, the crossings of curve j are the roots of
    g(s) = cross(d, x_j(s) - C) with depth lambda(s) = (x_j(s) - C) . d / |d|^2 in (0, 1).
-   They are read off the grid like the event roots: sign changes of g, and near-grazing
-   pairs of crossings inside one cell from the cubic Hermite interpolant of (g, g').
+   They are read off the camera's grid like the tangency times: sign changes of g, and
+   near-grazing pairs of crossings inside one cell from the cubic Hermite interpolant of
+   (g, g'). Its extra node, the camera's nearest point on each curve
+   (`_events.with_nearest_node`), keeps the depth of a crossing just behind the camera
+   from being interpolated to one in front of it.
 3. **Own curve.** On curve i itself, g has its trivial root at t_m, and on the grid
    [0, 1] of a closed curve its periodic images t_m -+ 1 too. There the test uses the
    deflated r(s) = g(s) / p(s), p = u (1 - u) (1 + u) with u = s - t_m (r(t_m) = g'(t_m)
@@ -29,7 +32,7 @@ event times and the integrand).
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from ._events import GrazingProbes, Samples, grid_cell
 from ._materialize import computed_on_one_thread
@@ -138,34 +141,38 @@ def facing(camera: Vec, sense: Float[Array, " m"], x_mid: Vec, dx_mid: Vec) -> B
 
 def visible_points(
     camera: Vec,
-    samples: Samples,
+    grid: Samples,
     sense: Float[Array, " m"],
     t_mid: Float[Array, "m q"],
     x_mid: Vec,
     dx_mid: Vec,
     probes: GrazingProbes,
-    pieces: np.ndarray | None = None,
+    pieces: Int[Array, "m n"] | None = None,
     one_thread: bool = False,
 ) -> Bool[Array, "m q"]:
     """chi(t_mid[i, k], camera) for query points x_mid, x'_mid (arrays (m, q)) on every
-    curve i, with the camera's tangency points as `probes` of grazing lines of sight;
-    `pieces`: the smooth piece of each grid cell (`Scene.pieces`, None where every curve
-    is one); with `one_thread`, the test on the own curve is one kernel on one thread
+    curve i, on the camera's grid (`_events.with_nearest_node`), with its tangency points
+    as `probes` of grazing lines of sight (on that grid); `pieces`: the smooth piece of
+    each cell of the grid (`_events.grid_pieces`, None where every curve is one); with
+    `one_thread`, the test on the own curve is one kernel on one thread
     (`computed_on_one_thread`)."""
     m = t_mid.shape[0]
-    h = jnp.diff(samples.t)
+    h = jnp.diff(grid.t)  # (m, N + 1)
     d = sub(x_mid, camera)  # (m, q)
     reach = dot(d, d)
-    sight = sub(samples.x, camera)
+    sight = sub(grid.x, camera)
 
     # Every other curve j (static indices, none for a single curve): arrays
     # (m, q, m - 1, N + 1).
     other = np.array([[j for j in range(m) if j != i] for i in range(m)], int).reshape(m, m - 1)
     dd = d.map(lambda a: a[:, :, None, None])
     sight_j = sight.map(lambda a: a[other][:, None])
-    dg_j = samples.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[other][:, None])))
+    dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[other][:, None])))
     others = _crosses_segment(
-        cross(dd, sight_j), dg_j, h, linear_depth(dot(dd, sight_j), reach[:, :, None, None])
+        cross(dd, sight_j),
+        dg_j,
+        h[other][:, None],
+        linear_depth(dot(dd, sight_j), reach[:, :, None, None]),
     )
     blocked = fused_reduce(jnp.any, others, (-1, -2))
     on_other = jax.tree.map(lambda a: a[other][:, None], probes)  # (m, 1, m - 1, r)
@@ -192,7 +199,7 @@ def visible_points(
     dq = d.map(lambda a: a[:, :, None])
     own_sight = sight.map(lambda a: a[:, None])
     g = cross(dq, own_sight)  # (m, q, N + 1)
-    u = samples.t[None, None] - t_mid[:, :, None]
+    u = grid.t[:, None] - t_mid[:, :, None]
     deflator = _deflator(u)
     deflator_slope = 1.0 - 3.0 * u * u
     tolerance = 1e4 * jnp.finfo(u.dtype).eps
@@ -215,7 +222,7 @@ def visible_points(
     flat = float(jnp.finfo(u.dtype).eps) ** (1 / 3)
     flat = (jnp.abs(u) <= flat) | (jnp.abs(1.0 - jnp.abs(u)) <= flat)
 
-    dg = samples.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[:, None])))
+    dg = grid.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[:, None])))
     dr = jax.tree.map(lambda s: jnp.where(flat, 0.0, (s - r * deflator_slope) / divisor), dg)
 
     def crosses_own(r, dr, h, excess, deflator, reach, r_mid, undeflated):
@@ -233,10 +240,10 @@ def visible_points(
     # crossings), so cells on other pieces than the query's are tested on g itself.
     undeflated = None
     if pieces is not None:
-        query_piece = jnp.take_along_axis(jnp.asarray(pieces), grid_cell(t_mid, samples), 1)
-        same_piece = jnp.asarray(pieces)[:, None, :] == query_piece[:, :, None]
+        query_piece = jnp.take_along_axis(pieces, grid_cell(t_mid, grid), 1)
+        same_piece = pieces[:, None, :] == query_piece[:, :, None]
         undeflated = (g, dg, dot(dq, own_sight), same_piece)
-    args = (r, dr, h, excess, deflator, reach_q, r_mid, undeflated)
+    args = (r, dr, h[:, None], excess, deflator, reach_q, r_mid, undeflated)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
 
     # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)
@@ -247,7 +254,7 @@ def visible_points(
     own = own | fused_reduce(
         jnp.any,
         on_own.valid
-        & (cell != grid_cell(t_mid, samples)[:, :, None])
+        & (cell != grid_cell(t_mid, grid)[:, :, None])
         & _grazing(
             cross(dq, on_own.sight) * _deflator(on_own.t - t_mid[:, :, None]),
             jnp.take_along_axis(r, cell, -1),

@@ -44,6 +44,7 @@ from ._events import (
     bounding_discs,
     crossover_times,
     grazing_probes,
+    grid_pieces,
     join_sources,
     range_times,
     sample,
@@ -52,6 +53,7 @@ from ._events import (
     tangency_points,
     tangency_times,
     wedge_edges,
+    with_nearest_node,
 )
 from ._frame import Frame, scene_frame
 from ._materialize import computed_on_one_thread, materialize
@@ -254,8 +256,8 @@ def _camera_partition(
     scene, pose: Camera, samples, sense, nearest, options, one_thread: bool
 ) -> CameraPartition:
     """One camera's events on every curve and which intervals between them it sees
-    (`nearest`: the camera's nearest points t* on the curves, extra nodes of the
-    tangency search)."""
+    (`nearest`: the camera's nearest points t* on the curves, extra nodes of its grid for
+    the tangency search and the occlusion test, `with_nearest_node`)."""
     iters = options.newton_iterations
     camera = Vec.of(pose.position)
     frozen = jax.lax.stop_gradient(pose)  # the visibility decisions carry no derivative
@@ -263,9 +265,11 @@ def _camera_partition(
     if conics is not None:
         tangents = conic_tangency_times(conics, camera)
     else:
-        tangents = tangency_times(scene, camera, samples, nearest, options.max_tangents, iters)
-    sources = tangency_points(scene, tangents)
-    probes = None if conics is not None else grazing_probes(camera, samples, tangents, sources)
+        grid = with_nearest_node(scene, samples, nearest)
+        tangents = tangency_times(scene, camera, grid, options.max_tangents, iters)
+    points = tangency_points(scene, tangents)
+    probes = None if conics is not None else grazing_probes(camera, samples, tangents, points)
+    sources = points
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
     if scene.has_corners:
         sources = join_sources(sources, silhouette_corners(scene, camera, samples))
@@ -298,8 +302,10 @@ def _camera_partition(
         visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
     else:
         pieces = scene.pieces(samples.t.shape[0] - 1)
+        pieces = None if pieces is None else grid_pieces(pieces, grid)
+        on_grid = grazing_probes(camera, grid, tangents, points)
         visible = visible_points(
-            seen_from, samples, sense, t_mid, x_mid, dx_mid, probes, pieces, one_thread
+            seen_from, grid, sense, t_mid, x_mid, dx_mid, on_grid, pieces, one_thread
         )
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
