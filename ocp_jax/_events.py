@@ -135,9 +135,10 @@ def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> S
     camera was taken for blocked). At t*, where x - C is normal to the curve,
     F = +-|x'| |x - C| has the sign opposite to F at both tangency times (as a node it
     puts each in a cell of its own, and near an inflection, where a third one lies close
-    by, two in a cell of half the width), and a line of sight from C crosses the curve
-    within |x - C| / |sin| of it (on a cell beside the node, the depth's interpolation
-    error is then O(|x - C|))."""
+    by, two in a cell of half the width). And a line of sight at an angle a to the curve
+    crosses it within |x - C| / sin(a) of x(t*), at a depth (x - C) . d of -+|d| |x - C|
+    / sin(a), which the interpolation from the node errs by about |d| |x - C| / tan(a)
+    times half the angle the curve turns through in the cell (not by O(h^2))."""
     frozen = jax.lax.stop_gradient(scene)
     cells = samples.t.shape[0] - 1
     cell = grid_cell(nearest, samples)[:, None]  # (m, 1)
@@ -145,7 +146,7 @@ def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> S
     extra = jnp.where(inside, nearest[:, None], (cell + 0.5) / cells)
     node = jnp.arange(cells + 2)[None]  # of the grid with the extra node, node c + 1
     from_grid = node - (node > cell + 1)  # (m, N + 2): the grid node each other one copies
-    x, dx, ddx = frozen.components(extra)  # (m, 1)
+    at_extra = frozen.components(extra)  # x, x', x'' there, (m, 1)
 
     def with_extra(at_nodes, at_extra):  # (m | 1, N + 1), (m, 1) -> (m, N + 2)
         at_nodes = jnp.broadcast_to(at_nodes, (extra.shape[0], cells + 1))
@@ -154,17 +155,11 @@ def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> S
 
     grid = Samples(
         with_extra(samples.t[None], extra),
-        Vec(with_extra(samples.x.x, x.x), with_extra(samples.x.y, x.y)),
-        Vec(with_extra(samples.dx.x, dx.x), with_extra(samples.dx.y, dx.y)),
-        Vec(with_extra(samples.ddx.x, ddx.x), with_extra(samples.ddx.y, ddx.y)),
+        *jax.tree.map(with_extra, (samples.x, samples.dx, samples.ddx), at_extra),
     )
     if samples.dx_end is not None:  # the extra node is no corner: its left limits are x'
-        grid = grid._replace(
-            dx_end=Vec(with_extra(samples.dx_end.x, dx.x), with_extra(samples.dx_end.y, dx.y)),
-            ddx_end=Vec(
-                with_extra(samples.ddx_end.x, ddx.x), with_extra(samples.ddx_end.y, ddx.y)
-            ),
-        )
+        ends = jax.tree.map(with_extra, (samples.dx_end, samples.ddx_end), at_extra[1:])
+        grid = grid._replace(dx_end=ends[0], ddx_end=ends[1])
     # Computed once (see `materialize`), not in every consumer of the nodes.
     return materialize(grid, scene)
 

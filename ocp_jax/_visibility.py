@@ -268,7 +268,6 @@ def _camera_partition(
         grid = with_nearest_node(scene, samples, nearest)
         tangents = tangency_times(scene, camera, grid, options.max_tangents, iters)
     points = tangency_points(scene, tangents)
-    probes = None if conics is not None else grazing_probes(camera, samples, tangents, points)
     sources = points
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
     if scene.has_corners:
@@ -282,6 +281,7 @@ def _camera_partition(
     if conics is not None:
         shadows = conic_shadow_times(conics, camera, sources, options.max_shadows)
     else:
+        probes = grazing_probes(camera, samples, tangents, points)
         shadows = shadow_times(scene, camera, samples, sources, probes, options.max_shadows, iters)
     pieces.append(shadows.t)
     ranges = None
@@ -301,11 +301,12 @@ def _camera_partition(
         blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
         visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
     else:
-        pieces = scene.pieces(samples.t.shape[0] - 1)
-        pieces = None if pieces is None else grid_pieces(pieces, grid)
-        on_grid = grazing_probes(camera, grid, tangents, points)
+        smooth = None  # the smooth piece of each cell of the camera's grid, for corners
+        if scene.has_corners:
+            smooth = grid_pieces(scene.pieces(samples.t.shape[0] - 1), grid)
+        probes = grazing_probes(camera, grid, tangents, points)  # on the camera's grid
         visible = visible_points(
-            seen_from, grid, sense, t_mid, x_mid, dx_mid, on_grid, pieces, one_thread
+            seen_from, grid, sense, t_mid, x_mid, dx_mid, probes, smooth, one_thread
         )
     padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
     visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
