@@ -75,7 +75,6 @@ class Roots(NamedTuple):
     t: Float[Array, "*batch r"]  # padded with 1.0 (the end of [0, 1))
     valid: Bool[Array, "*batch r"]
     count: Int[Array, "*batch"]  # roots found before packing into the budget
-    settled: Bool[Array, ""]  # every root final within the Newton steps (closed forms: True)
 
 
 def tangency_function(t, args):
@@ -173,10 +172,10 @@ def tangency_times(scene, camera: Vec, grid: Samples, budget: int, iterations: i
     slopes = grid.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
     scale = grid.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
     brackets = grid_brackets(grid.t[:, None], values, slopes, budget, scale=scale)
-    t, valid, settled = solve_roots(
+    t, valid = solve_roots(
         tangency_function, (scene, camera), brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count, settled)
+    return Roots(t, valid, brackets.count)
 
 
 class RaySources(NamedTuple):
@@ -485,10 +484,10 @@ def shadow_times(
         own_corner = (tangency.curve[line] == jnp.arange(m)[:, None]) & ~tangency.tangent[line]
         by_corner = (own_corner, jax.lax.stop_gradient(tangency.t[line]))
     args = (scene, camera, Vec.of(tangency.point.stack()[line]), by_corner)  # one gather
-    s, valid, settled = solve_roots(
+    s, valid = solve_roots(
         shadow_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(s, valid, jnp.maximum(brackets.count, ray_count), settled)
+    return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
 
 
 def range_function(t, args):
@@ -505,10 +504,10 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
     values = (dot(sight, sight) - jax.lax.stop_gradient(reach) ** 2)[:, None]
     slopes = samples.at_nodes(lambda dx, _: 2.0 * dot(sight, dx)[:, None])
     brackets = grid_brackets(samples.t, values, slopes, budget)
-    t, valid, settled = solve_roots(
+    t, valid = solve_roots(
         range_function, (scene, camera, reach), brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count, settled)
+    return Roots(t, valid, brackets.count)
 
 
 def crossover_times(
@@ -542,7 +541,7 @@ def crossover_times(
     values, slopes = nodes if samples.dx_end is None else zip(*nodes)
     brackets = grid_brackets(samples.t, values, slopes, budget)
     args = (scene, ga, gb, objective)
-    t, valid, settled = solve_roots(
+    t, valid = solve_roots(
         crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count, settled)
+    return Roots(t, valid, brackets.count)

@@ -270,11 +270,10 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     error left (about curvature d^2, quadratic convergence) is below eps / 16. No step
     is taken where no slot holds a candidate.
 
-    Returns the roots (no derivative attached), whether each is a root (a candidate
+    Returns the roots (no derivative attached) and whether each is a root: a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
-    only once an iterate has confirmed the sign change, F of the other sign than at the
-    bracket's start, or |F| <= 1e3 eps scale at the end) and whether every root was
-    final within the `iterations` (false: the budget was exceeded, to be reported).
+    only once an iterate has confirmed the sign change (F of the other sign than at the
+    bracket's start) or |F| <= 1e3 eps scale at the end.
 
     With `store`, each step computes F and F' in one kernel and stores them, as does the
     validity check (`materialize`): XLA's CPU backend otherwise computes F in each of the
@@ -320,11 +319,11 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
         return (i < iterations) & ~settled
 
     carry = (0, lo, hi, t, confirmed, ~jnp.any(brackets.candidate))
-    _, lo, hi, t, confirmed, settled = jax.lax.while_loop(running, step, carry)
+    _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
     value, scale = evaluate(t, (0, 2))
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
-    return t, valid, settled
+    return t, valid
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -348,10 +347,10 @@ def solve_roots(fn, args, brackets: Brackets, iterations: int, fill: float, stor
     """Roots of `fn` in the packed brackets, differentiable in `args` (`store`: see
     `newton_in_brackets`).
 
-    **Returns:** (t, valid, settled), invalid slots set to `fill` with zero derivative.
+    **Returns:** (t, valid), invalid slots set to `fill` with zero derivative.
     """
-    t, valid, settled = newton_in_brackets(
+    t, valid = newton_in_brackets(
         fn, jax.lax.stop_gradient(args), jax.lax.stop_gradient(brackets), iterations, store
     )
     t = implicit_root(fn, t, args)
-    return jnp.where(valid, t, fill), valid, settled
+    return jnp.where(valid, t, fill), valid
