@@ -124,7 +124,8 @@ def crossover_function(t, args):
 def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> Samples:
     """One camera's grid: the samples with one more node per curve, the camera's nearest
     point t* = `nearest` (no derivative), so that `t` and the components are arrays
-    (m, N + 2). Where t* is a grid node (a corner), the midpoint of its cell is the node.
+    (m, N + 2). Where t* is a grid node (a corner; to 1e4 eps), the midpoint of its cell
+    is the node.
 
     Close to the camera a curve bends more between the grid's nodes than the camera's
     distance to it, and interpolation from them misjudges what is near the camera: the
@@ -142,8 +143,13 @@ def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> S
     frozen = jax.lax.stop_gradient(scene)
     cells = samples.t.shape[0] - 1
     cell = grid_cell(nearest, samples)[:, None]  # (m, 1)
-    inside = (nearest[:, None] * cells - cell) % 1 != 0
-    extra = jnp.where(inside, nearest[:, None], (cell + 0.5) / cells)
+    # t* within rounding of a node (a corner, reached from one of its pieces) counts as
+    # the node: a polygon evaluated 1 ulp before its corner at 0.75 gave the next edge's
+    # x', F took its sign there, and the cell ending at t* showed a sign change of F
+    # that is no root (the search bisected it to 1e-12 and returned that as a root).
+    position = nearest[:, None] * cells
+    on_node = jnp.abs(position - jnp.round(position)) <= 1e4 * jnp.finfo(position.dtype).eps * cells
+    extra = jnp.where(on_node, (cell + 0.5) / cells, nearest[:, None])
     node = jnp.arange(cells + 2)[None]  # of the grid with the extra node, node c + 1
     from_grid = node - (node > cell + 1)  # (m, N + 2): the grid node each other one copies
     at_extra = frozen.components(extra)  # x, x', x'' there, (m, 1)

@@ -224,6 +224,27 @@ def test_a_camera_beside_the_kidney_sees_past_the_bend_behind_it():
     assert np.max(np.abs(np.asarray(q) / np.array(ref) - 1)) < 1e-9
 
 
+def test_a_nearest_point_one_ulp_before_a_corner_counts_as_the_corner():
+    """The camera's nearest point on a polygon is often a corner, which the nearest-point
+    search may reach from the piece before it: t* = 0.75 - 1 ulp on the unit square. A
+    polygon evaluated there gives the next edge's x' (as at the corner), so as an extra
+    node of the camera's grid its F = cross(x', x - C) had the next edge's sign, the
+    cell before it a sign change of F (constant on an edge) and the tangency search a
+    root at 0.75 - 1e-12 that is none (its Newton steps never settled). t* within 1e4
+    eps of a node counts as the node: the extra node is the midpoint of its cell."""
+    square = ocp.PiecewiseCurve.polygon(jnp.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+    scene = ocp.Scene([square])
+    samples = _events.sample(scene, grid_cells(scene))
+    camera = Vec(jnp.array(1.0), jnp.array(2.0))  # the corner (0, 1) a silhouette corner
+    cells = samples.t.shape[0] - 1
+    grid = _events.with_nearest_node(scene, samples, jnp.array([np.nextafter(0.75, 0.0)]))
+    assert float(grid.t[0, round(0.75 * cells)]) == 0.75 - 0.5 / cells
+    tangents = _events.tangency_times(
+        scene, camera, grid, OPTIONS.max_tangents, OPTIONS.newton_iterations
+    )
+    assert not np.any(tangents.valid)
+
+
 def test_gradient_where_a_tangency_time_meets_a_panel_breakpoint():
     """A camera on an axis-aligned tangent line of a circle touches it at a panel
     breakpoint (t = 0, 1/2, 3/4). The zero-length interval between the tie's two pieces is
