@@ -30,7 +30,7 @@ import ocp_jax as ocp  # noqa: E402
 from ocp_jax._visibility import valid_visibility  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-from helpers import outward_normals, to_reference  # noqa: E402
+from helpers import cameras_beside, to_reference  # noqa: E402
 from reference import eval_curve, reference_visibility  # noqa: E402
 
 DISTANCES = (1e-1, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6)
@@ -40,16 +40,6 @@ SCENES = {
     "blobs": lambda: ocp.scenes.blobs(3),
     "room": ocp.scenes.room,
 }
-
-
-def cameras_beside(reference: list[dict], sides, points: int, distance: float, rng):
-    """Cameras at `distance` along the normal on the free side (outside objects, `sides`
-    +1; inside rooms, -1) of random points of every curve, shape (m points, 2)."""
-    cameras = []
-    for spec, side in zip(reference, sides):
-        t = rng.uniform(0.0, 1.0, points)
-        cameras.append(eval_curve(spec, t)[0] + distance * side * outward_normals(spec, t))
-    return np.concatenate(cameras)
 
 
 def main():
@@ -75,7 +65,12 @@ def main():
     )
     for distance in DISTANCES:
         rng = np.random.default_rng(args.seed)
-        cams = cameras_beside(reference, scene.sides(), args.points, distance, rng)
+        cams = np.concatenate(  # beside random points of every curve, on its free side
+            [
+                cameras_beside(spec, rng.uniform(0.0, 1.0, args.points), [distance], side)
+                for spec, side in zip(reference, scene.sides())
+            ]
+        )
         q, valid = (np.asarray(a) for a in value(jnp.asarray(cams)))
         errors, missed = [], 0
         for c, qc in zip(cams[valid], q[valid]):

@@ -251,6 +251,17 @@ def outward_normals(spec: dict, t) -> np.ndarray:
     return ccw * np.stack([dx[..., 1], -dx[..., 0]], -1) / np.linalg.norm(dx, axis=-1)[..., None]
 
 
+def cameras_beside(spec: dict, t, distances, side: float = 1.0) -> np.ndarray:
+    """Cameras at each distance along the normal of a reference curve at each t, on its
+    free side (`side` +1: outside an object; -1: inside a room), shape (len(t) *
+    len(distances), 2), the distances varying fastest."""
+    from reference import eval_curve
+
+    points, normals = eval_curve(spec, t)[0], side * outward_normals(spec, t)
+    offsets = np.asarray(distances)[None, :, None] * normals[:, None]
+    return (points[:, None] + offsets).reshape(-1, 2)
+
+
 def inflections(spec: dict, n: int = 20000) -> np.ndarray:
     """Parameters where the curvature cross(x', x'') changes sign (bisected)."""
     from reference import eval_curve

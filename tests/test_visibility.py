@@ -177,12 +177,6 @@ def visible_length_of(name):
     return jax.jit(jax.vmap(lambda c: ocp.visibility(H.SCENES[name], c[None], VL)))
 
 
-def cameras_beside(spec, t, distances):
-    """Cameras at each distance along the outward normal of the curve `spec` at each t."""
-    points, normals = eval_curve(spec, t)[0], H.outward_normals(spec, t)
-    return [x + d * n for x, n in zip(points, normals) for d in distances]
-
-
 def test_a_camera_beside_the_banana_sees_the_arc_in_front_of_it():
     """A camera close to a curve sees a short arc between two tangency times, closer
     together than the grid resolves: the camera's nearest point, where F = cross(x', x -
@@ -196,9 +190,9 @@ def test_a_camera_beside_the_banana_sees_the_arc_in_front_of_it():
     pair of them, and the cell's interpolant has two extrema; only one taken into
     account, the pair was missed (Q 7% too large)."""
     spec = H.to_reference(H.BANANA)[0]
-    cams = cameras_beside(spec, np.array([0.0165, 0.2698, 0.9808]), (1e-3, 3e-4, 1e-4, 1e-5))
+    beside = H.cameras_beside(spec, np.array([0.0165, 0.2698, 0.9808]), (1e-3, 3e-4, 1e-4, 1e-5))
     x, dx, _ = eval_curve(spec, 15 / 36 - 1e-5)
-    cams.append(x - 2.0 * dx / np.linalg.norm(dx))
+    cams = [*beside, x - 2.0 * dx / np.linalg.norm(dx)]
     q = visible_length_of("banana")(jnp.asarray(cams))
     ref = [reference_visibility([spec], c[None], "visible_length") for c in cams]
     assert min(ref) > 0.01
@@ -217,7 +211,7 @@ def test_a_camera_beside_the_kidney_sees_past_the_bend_behind_it():
     errs by O(the camera's distance)."""
     specs = H.to_reference(H.THREE)
     t = np.array([0.6375, 0.6525, 0.7025, 0.71, 0.7325, 0.76, 0.79, 0.8125, 0.8275, 0.845])
-    cams = cameras_beside(specs[0], t, (1e-2, 1e-3, 1e-5, 1e-6))
+    cams = H.cameras_beside(specs[0], t, (1e-2, 1e-3, 1e-5, 1e-6))
     q = visible_length_of("three")(jnp.asarray(cams))
     ref = [reference_visibility(specs, c[None], "visible_length") for c in cams]
     assert min(ref) > 1.0
