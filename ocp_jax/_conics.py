@@ -83,7 +83,7 @@ def conic_tangency_times(frames: UnitFrame, camera: Vec) -> Roots:
     angle = _angle(origin, outside)[:, None] + jnp.stack([half, -half], -1)
     t = jnp.mod(angle / _TWO_PI, 1.0)
     valid = jnp.broadcast_to(outside[:, None], t.shape)
-    return Roots(jnp.where(valid, t, 1.0), valid, jnp.where(outside, 2, 0))
+    return Roots(jnp.where(valid, t, 1.0), valid, jnp.where(outside, 2, 0), jnp.array(True))
 
 
 def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budget: int) -> Roots:
@@ -121,7 +121,7 @@ def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budg
         index, filled, _ = first_true(valid, budget)
         t = jnp.where(filled, jnp.take_along_axis(t, index, -1), 1.0)
         valid = filled
-    return Roots(t, valid, count)
+    return Roots(t, valid, count, jnp.array(True))
 
 
 def _det(matrix: Float[Array, "m 2 2"]) -> Float[Array, " m"]:

@@ -75,6 +75,7 @@ class Roots(NamedTuple):
     t: Float[Array, "*batch r"]  # padded with 1.0 (the end of [0, 1))
     valid: Bool[Array, "*batch r"]
     count: Int[Array, "*batch"]  # roots found before packing into the budget
+    settled: Bool[Array, ""]  # every root final within the Newton steps (closed forms: True)
 
 
 def tangency_function(t, args):
@@ -178,10 +179,10 @@ def tangency_times(scene, camera: Vec, grid: Samples, budget: int, iterations: i
     slopes = grid.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
     scale = grid.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
     brackets = grid_brackets(grid.t[:, None], values, slopes, budget, scale=scale)
-    t, valid = solve_roots(
+    t, valid, settled = solve_roots(
         tangency_function, (scene, camera), brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count)
+    return Roots(t, valid, brackets.count, settled)
 
 
 class RaySources(NamedTuple):
@@ -490,10 +491,10 @@ def shadow_times(
         own_corner = (tangency.curve[line] == jnp.arange(m)[:, None]) & ~tangency.tangent[line]
         by_corner = (own_corner, jax.lax.stop_gradient(tangency.t[line]))
     args = (scene, camera, Vec.of(tangency.point.stack()[line]), by_corner)  # one gather
-    s, valid = solve_roots(
+    s, valid, settled = solve_roots(
         shadow_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(s, valid, jnp.maximum(brackets.count, ray_count))
+    return Roots(s, valid, jnp.maximum(brackets.count, ray_count), settled)
 
 
 def range_function(t, args):
@@ -510,10 +511,10 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
     values = (dot(sight, sight) - jax.lax.stop_gradient(reach) ** 2)[:, None]
     slopes = samples.at_nodes(lambda dx, _: 2.0 * dot(sight, dx)[:, None])
     brackets = grid_brackets(samples.t, values, slopes, budget)
-    t, valid = solve_roots(
+    t, valid, settled = solve_roots(
         range_function, (scene, camera, reach), brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count)
+    return Roots(t, valid, brackets.count, settled)
 
 
 def crossover_times(
@@ -547,7 +548,7 @@ def crossover_times(
     values, slopes = nodes if samples.dx_end is None else zip(*nodes)
     brackets = grid_brackets(samples.t, values, slopes, budget)
     args = (scene, ga, gb, objective)
-    t, valid = solve_roots(
+    t, valid, settled = solve_roots(
         crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count)
+    return Roots(t, valid, brackets.count, settled)

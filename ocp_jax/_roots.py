@@ -270,15 +270,17 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     error left (about curvature d^2, quadratic convergence) is below eps / 16. No step
     is taken where no slot holds a candidate.
 
-    Returns the roots (no derivative attached) and whether each is a root: a candidate
+    Returns the roots (no derivative attached), whether each is a root (a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
-    only once an iterate has confirmed the sign change (F of the other sign than at the
-    bracket's start) or |F| <= 1e3 eps scale at the end.
+    only once an iterate has confirmed the sign change, F of the other sign than at the
+    bracket's start, or |F| <= 1e3 eps scale at the end) and whether the search is done:
+    every root final within the `iterations` or |F| <= 1e3 eps scale there (false: the
+    budget was exceeded, to be reported).
 
     With `store`, each step computes F and F' in one kernel and stores them, as does the
-    validity check (`materialize`): XLA's CPU backend otherwise computes F in each of the
-    five updates that read it (the bracket's ends, the iterate, the confirmed sign and
-    the stopping flag). Worth it where F is costly (a long polynomial), not where the
+    validity check (`materialize`): XLA's CPU backend otherwise computes F in each
+    update that reads it (the bracket's ends, the iterate, the confirmed sign) and in
+    each consumer of the check's (validity, done). Worth it where F is costly (a long polynomial), not where the
     stored copy's kernels cost more than the repeated arithmetic.
     """
     # Each array of the state is a carry of its own: one stacked carry launches fewer
@@ -311,19 +313,20 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
         final = (jnp.abs(new - t) <= 4 * eps) | (
             inside & (16.0 * brackets.curvature * moved * moved <= eps)
         )
-        settled = jnp.all(final | ~brackets.candidate)
-        return i + 1, lo, hi, new, confirmed | ~same, settled
+        return i + 1, lo, hi, new, confirmed | ~same, final | ~brackets.candidate
 
     def running(carry):
-        i, *_, settled = carry
-        return (i < iterations) & ~settled
+        i, *_, final = carry
+        return (i < iterations) & ~jnp.all(final)
 
-    carry = (0, lo, hi, t, confirmed, ~jnp.any(brackets.candidate))
-    _, lo, hi, t, confirmed, _ = jax.lax.while_loop(running, step, carry)
+    carry = (0, lo, hi, t, confirmed, ~brackets.candidate)
+    _, lo, hi, t, confirmed, final = jax.lax.while_loop(running, step, carry)
     value, scale = evaluate(t, (0, 2))
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
-    return t, valid
+    # Not final but |F| at rounding level: at a double root (two cameras' q that touch)
+    # the iterates wander in the noise and need not settle, and any of them will do.
+    return t, valid, jnp.all(final | converged)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
@@ -347,10 +350,10 @@ def solve_roots(fn, args, brackets: Brackets, iterations: int, fill: float, stor
     """Roots of `fn` in the packed brackets, differentiable in `args` (`store`: see
     `newton_in_brackets`).
 
-    **Returns:** (t, valid), invalid slots set to `fill` with zero derivative.
+    **Returns:** (t, valid, settled), invalid slots set to `fill` with zero derivative.
     """
-    t, valid = newton_in_brackets(
+    t, valid, settled = newton_in_brackets(
         fn, jax.lax.stop_gradient(args), jax.lax.stop_gradient(brackets), iterations, store
     )
     t = implicit_root(fn, t, args)
-    return jnp.where(valid, t, fill), valid
+    return jnp.where(valid, t, fill), valid, settled

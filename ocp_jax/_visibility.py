@@ -110,11 +110,12 @@ class VisibilityOptions(eqx.Module):
       there (1e-11 at 1.2 r from a circle of radius r, 2e-8 at 1.05 r, 5e-6 at 1.01 r):
       32 nodes bring these to 1e-15, 1e-15 and 7e-11. A camera closer to a curve than
       (2.5 / quadrature)^2 of its radius raises an error (for camera-dependent q).
-    - `newton_iterations`: the most safeguarded Newton steps per root (the search stops
-      once every root is final, mostly after 2-4). A camera within 1e-7 of the scene's
-      size from a curve needs up to 12: its nearest point splits a cell, and a root right
-      beside that point is reached by bisecting the long part (with 8, VisibleLength of
-      the banana from 1e-5 was off by up to 4e-5, `benchmarks/beside_curves.py`).
+    - `newton_iterations`: the most safeguarded Newton steps per root search (it stops
+      once every root is final, mostly after 2-4); a search that is not done by then
+      raises an error. A camera close to a curve needs more: its nearest point splits a
+      cell, and a tangency time right beside that point is approached from the cell's
+      far end, halving the distance per step (the banana from 1e-6, 1.7e-8 of its size,
+      just outside the distance at which a camera counts as on the curve: up to 22).
     """
 
     grid: int | None = eqx.field(static=True, default=None)
@@ -125,7 +126,7 @@ class VisibilityOptions(eqx.Module):
     max_intervals: int | None = eqx.field(static=True, default=None)
     max_camera_intervals: int | None = eqx.field(static=True, default=None)
     quadrature: int = eqx.field(static=True, default=16)
-    newton_iterations: int = eqx.field(static=True, default=16)
+    newton_iterations: int = eqx.field(static=True, default=32)
 
     def __check_init__(self):
         for name in (
@@ -598,6 +599,16 @@ def _failures(scene, events: Events, options, camera_dependent: bool, intervals=
                 f"options=ocp.VisibilityOptions({name}=...) with a larger value.",
             )
         )
+    searches = [partitions.tangents, partitions.shadows, partitions.ranges, crossovers]
+    unsettled = [~jnp.all(roots.settled) for roots in searches if roots is not None]
+    failures.append(
+        (
+            jnp.any(jnp.stack(unsettled)),
+            f"ocp_jax: a root search was not done in {options.newton_iterations} Newton "
+            "steps (a camera very close to a curve?): pass "
+            "options=ocp.VisibilityOptions(newton_iterations=...) with a larger value.",
+        )
+    )
     return jnp.stack([f for f, _ in failures]), [message for _, message in failures]
 
 
@@ -699,7 +710,7 @@ class VisibleIntervals(eqx.Module):
     Arrays of shape (k, m, e) (padded: zero-length intervals at t = 1); `to_list` gives
     merged Python intervals. The events that cut them: `tangents` (tangency times, where
     the line of sight grazes curve i) and `shadows` (where a grazing ray meets a curve
-    again), each `Roots(t, valid, count)` with t of shape (k, m, r).
+    again), each `Roots(t, valid, count, settled)` with t of shape (k, m, r).
     """
 
     start: Float[Array, "k m e"]

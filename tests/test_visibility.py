@@ -67,8 +67,10 @@ def test_a_sign_change_across_a_cell_is_never_split_away():
     nodes = jnp.array([0.0, 1.0])
     values, slopes, _ = fn(nodes, None)
     brackets = _roots.grid_brackets(nodes, values[None], slopes[None], 2)
-    t, valid = _roots.solve_roots(fn, None, brackets, OPTIONS.newton_iterations, 1.0, False)
-    assert int(brackets.count) == 1 and bool(valid[0])
+    t, valid, settled = _roots.solve_roots(
+        fn, None, brackets, OPTIONS.newton_iterations, 1.0, False
+    )
+    assert int(brackets.count) == 1 and bool(valid[0]) and bool(settled)
     assert abs(float(fn(t[0], None)[0])) < 1e-14 and 0.05 < float(t[0]) < 0.07
 
 
@@ -1439,7 +1441,7 @@ def _pair_roots(a, budget):
     t = jnp.linspace(0.0, 1.0, 9)  # cells of 1/8
     values, slopes, _ = _pair_function(t, a)
     brackets = _roots.grid_brackets(t, values[None], slopes[None], budget)
-    roots, valid = _roots.solve_roots(_pair_function, a, brackets, 30, 1.0, False)
+    roots, valid, _ = _roots.solve_roots(_pair_function, a, brackets, 30, 1.0, False)
     return brackets, roots, valid
 
 
@@ -1538,7 +1540,8 @@ def test_newton_in_brackets_takes_no_step_without_candidates():
         count=candidate.sum(1),
     )
     solve = jax.jit(jax.vmap(lambda b: _roots.newton_in_brackets(fn, None, b, 8)))
-    t, valid = solve(brackets)
+    t, valid, settled = solve(brackets)
+    np.testing.assert_array_equal(settled, True)
     np.testing.assert_array_equal(t[0], 0.5)  # no candidate: no step
     np.testing.assert_allclose(t[1], 0.3, rtol=0, atol=1e-16)
     np.testing.assert_array_equal(valid, candidate)
@@ -1559,7 +1562,7 @@ def test_newton_in_brackets_stops_once_newtons_error_is_below_eps():
     t = jnp.linspace(0.0, 1.0, 9)
     brackets = _roots.grid_brackets(t, (jnp.exp(t) - 1.7)[None], jnp.exp(t)[None], 2)
     assert abs(float(brackets.guess[0]) - math.log(1.7)) > 1e-9  # Newton has work to do
-    roots, valid = jax.jit(lambda b: _roots.newton_in_brackets(fn, None, b, 8))(brackets)
+    roots, valid, _ = jax.jit(lambda b: _roots.newton_in_brackets(fn, None, b, 8))(brackets)
     jax.effects_barrier()
     assert len(calls) == 3
     assert bool(valid[0]) and abs(float(roots[0]) - math.log(1.7)) <= 2e-16
@@ -1567,20 +1570,61 @@ def test_newton_in_brackets_stops_once_newtons_error_is_below_eps():
 
 def test_newton_in_brackets_stores_f_once_per_step():
     """XLA's CPU backend computes an elementwise producer in every consumer fusion, so a
-    Newton step whose F updates five carried arrays compiles F five times (for a
+    Newton step whose F updates four carried arrays compiles F four times (for a
     degree-18 Bezier, hundreds of instructions each). With `store`, each step and the
     validity check after the loop compute F in one kernel (`materialize`, whose loop
     condition reads its key, no copy of F): F = sin t - 0.4 and F' = cos t are one stack
-    per step, plus one sine for the check."""
+    per step, plus one sine for the check. Without it: four in the step (the bracket's
+    ends, the iterate, the confirmed sign) and the check's F in each of its two consumers
+    (the roots' validity and the search's done flag)."""
     fn = lambda t, _: (jnp.sin(t) - 0.4, jnp.cos(t), jnp.ones_like(t))  # noqa: E731
     t = jnp.linspace(0.0, 1.0, 9)
     brackets = _roots.grid_brackets(t, (jnp.sin(t) - 0.4)[None], jnp.cos(t)[None], 2)
-    for store, sines in ((True, 2), (False, 5)):
+    for store, sines in ((True, 2), (False, 6)):
         solve = jax.jit(lambda b, s=store: _roots.newton_in_brackets(fn, None, b, 8, s))
         hlo = solve.lower(brackets).compile().as_text()
         assert len(re.findall(r" sine\(", hlo)) == sines, store
-        roots, valid = solve(brackets)
+        roots, valid, _ = solve(brackets)
         assert bool(valid[0]) and abs(float(roots[0]) - math.asin(0.4)) <= 2e-16
+
+
+def test_newton_in_brackets_says_whether_every_root_was_final_within_its_steps():
+    """F(t) = t^2 - 1e-8 from the guess 1 in [0, 1]: Newton halves the distance to the
+    root 1e-4 per step until it is close (Heron's square root), about 13 steps, then
+    converges in four more. Within 8 steps the search is not done (and visibility reports
+    that, `test_a_root_search_not_done_in_its_newton_steps_is_reported`); within 32 it is."""
+    fn = lambda t, _: (t * t - 1e-8, 2.0 * t, t * t + 1e-8)  # noqa: E731
+    brackets = _roots.Brackets(
+        lo=jnp.zeros(1),
+        hi=jnp.ones(1),
+        guess=jnp.ones(1),
+        sign_lo=-jnp.ones(1),
+        turning=jnp.zeros(1, bool),
+        curvature=jnp.ones(1),
+        candidate=jnp.ones(1, bool),
+        source=jnp.zeros(1, int),
+        count=jnp.array(1),
+    )
+    for steps, done in ((8, False), (32, True)):
+        roots, valid, settled = _roots.newton_in_brackets(fn, None, brackets, steps)
+        assert bool(settled) == done and bool(valid[0])
+    assert abs(float(roots[0]) - 1e-4) < 1e-15  # final: a step of at most 4 eps
+
+
+def test_a_root_search_not_done_in_its_newton_steps_is_reported():
+    """A camera 1e-6 from the banana (1.7e-8 of its size): a tangency time beside its
+    nearest point takes more than 8 Newton steps. With 8 the call raises an error that
+    says what to pass (before, it returned a root short of its final value); with the
+    default (32) VisibleLength equals the reference to 1e-8 (the arc seen is 0.005 long;
+    `benchmarks/beside_curves.py` finds up to 9e-9 at this distance)."""
+    spec = H.to_reference(H.BANANA)[0]
+    camera = jnp.asarray(H.cameras_beside(spec, np.array([0.2698]), (1e-6,)))
+    few = ocp.VisibilityOptions(newton_iterations=8)
+    with pytest.raises(Exception, match=r"not done in 8 Newton steps.*newton_iterations=\.\.\."):
+        jax.block_until_ready(ocp.visibility(H.BANANA, camera, VL, few))
+    q = visible_length_of("banana")(camera)
+    ref = reference_visibility([spec], np.asarray(camera), "visible_length")
+    assert abs(float(q[0]) / ref - 1) < 1e-8
 
 
 def test_implicit_root_derivative():
