@@ -208,7 +208,8 @@ def _edge_seen_head_on(a, b, camera):
     length = np.linalg.norm(b - a)
     along = (b - a) / length
     foot = np.dot(camera - a, along)
-    d = abs(np.cross(along, camera - a))
+    offset = camera - a
+    d = abs(along[0] * offset[1] - along[1] * offset[0])
     return length, d * (np.arctan((length - foot) / d) - np.arctan(-foot / d))
 
 
