@@ -43,7 +43,7 @@ jax.config.update("jax_enable_x64", True)
 import ocp_jax as ocp
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
-from helpers import relative_error, to_reference
+from helpers import relative_error, to_float32, to_reference
 from reference import reference_visibility
 
 MIXES = {
@@ -230,10 +230,6 @@ def float32_gradient_errors(scene, cameras) -> tuple[float, float]:
         relative_error(cameras_single, cameras_exact),
         relative_error(flat(scene_single), flat(scene_exact)),
     )
-
-
-def to_float32(tree):
-    return jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), tree)
 
 
 def main():

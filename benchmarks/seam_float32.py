@@ -12,6 +12,9 @@ own curve's line of sight was deflated at the query point's periodic images t_m 
 too (`_occlusion.py`), float32 lost it.
 """
 
+import os
+import sys
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -21,6 +24,9 @@ jax.config.update("jax_enable_x64", True)
 
 import ocp_jax as ocp
 
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
+from helpers import to_float32
+
 BESIDE_SEAM = (-1e-3, -1e-4, -3e-5, -1e-5, -3e-6, -1e-6, 1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 1e-3)
 AWAY = (0.1, 0.2, 0.3, 0.45, 0.6, 0.75, 0.9)
 ALONG = (2.0, -2.0, 5.0, -5.0)
@@ -29,7 +35,7 @@ ALONG = (2.0, -2.0, 5.0, -5.0)
 def float32_errors(scene, tangencies):
     """(t, along, Q in float64, |Q32 / Q64 - 1|) for the cameras that both precisions
     accept."""
-    scene32 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), scene)
+    scene32 = to_float32(scene)
     curve = scene.curves[0]
     rows = []
     for t in tangencies:

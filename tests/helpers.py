@@ -139,6 +139,11 @@ def unstack_tree(tree, i):
     return jax.tree.map(lambda a: a[i], tree)
 
 
+def to_float32(tree):
+    """A scene, cameras (or any pytree of them) cast to float32."""
+    return jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), tree)
+
+
 def _values(scene, cameras):
     return ocp.visibility(scene, cameras, VL), ocp.visibility(scene, cameras, FS)
 

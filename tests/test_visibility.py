@@ -681,10 +681,7 @@ def test_jacfwd_equals_grad():
 
 
 def test_float32():
-    def to32(tree):
-        return jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), tree)
-
-    scene32 = to32(H.THREE)
+    scene32 = H.to_float32(H.THREE)
     assert scene32.dtype == jnp.float32
     cams, (vl64, fs64) = scene_results("three", 1)
     n = len(H.CAMERAS["three"][1])
@@ -1197,8 +1194,7 @@ def test_conics_seen_through_wedges_and_ranges_match_the_reference():
     ref = reference_visibility(spec, cams, "foreshortened", poses=poses, observed=[1, 1, 1, 0])
     fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, options))
     assert rel(fn(CONICS, camera), ref) < 1e-9
-    to32 = functools.partial(jax.tree.map, lambda a: jnp.asarray(a, jnp.float32))
-    value32 = fn(to32(CONICS), to32(camera))
+    value32 = fn(*H.to_float32((CONICS, camera)))
     assert value32.dtype == jnp.float32 and rel(value32, ref) < 1e-4
     # the wedges and ranges matter: less is seen than without them
     assert ref < reference_visibility(spec, cams, "foreshortened", observed=[1, 1, 1, 0]) - 1.0
