@@ -8,6 +8,10 @@ import jax.numpy as jnp
 
 from ._jvp import perturbed_jvp
 
+# A vmap over at most this many elements (the cameras of one call) keeps
+# `computed_on_one_thread` on one thread; over more (a batch of camera sets) it may split.
+SMALL_BATCH = 4
+
 
 @jax.custom_jvp
 def materialize(tree, key):
@@ -64,7 +68,8 @@ def computed_on_one_thread(fn, args, key):
     one-trip while loop; fn is evaluated in the loop's body, tied to it by multiplying
     its float inputs by the loop's flag (1 there), so XLA cannot hoist it out. Each stack
     is then one kernel, fn's last operations fused into it (a reduction too); kernels
-    fn launches before them may still be split. Under a `vmap` of more than one element
+    fn launches before them may still be split. Under a `vmap` of up to `SMALL_BATCH`
+    elements (the cameras of one call) fn is vmapped inside the loop; under a larger one
     (a batch of camera sets) the kernels are large and splitting pays: there fn's
     outputs are only stored (`materialize`).
 
@@ -89,6 +94,10 @@ def computed_on_one_thread(fn, args, key):
             out = in_place(args, key)
             return jax.tree.map(lambda a: a[None], out), jax.tree.map(lambda _: True, out)
         axes = jax.tree.map(lambda b: 0 if b else None, (args_batched, key_batched))
+        if axis_size <= SMALL_BATCH:
+            vmapped = lambda *a: jax.vmap(fn, in_axes=axes[0], axis_size=axis_size)(*a)
+            out = computed_on_one_thread(vmapped, args, key)
+            return out, jax.tree.map(lambda _: True, out)
         stored = lambda args, key: materialize(fn(*args), key)
         out = jax.vmap(stored, in_axes=axes, axis_size=axis_size)(args, key)
         return out, jax.tree.map(lambda _: True, out)

@@ -56,7 +56,7 @@ from ._events import (
     with_nearest_node,
 )
 from ._frame import Frame, scene_frame
-from ._materialize import computed_on_one_thread, materialize
+from ._materialize import SMALL_BATCH, computed_on_one_thread, materialize
 from ._objectives import (
     AbstractLocalObjective,
     Foreshortened,
@@ -220,13 +220,14 @@ def _as_input(cameras):
     return cameras if isinstance(cameras, Camera) else jnp.asarray(cameras)
 
 
-def _one_thread(cameras: Vec) -> bool:
-    """Whether the kernels that test the intervals' visibility and evaluate the integrand
-    run on one thread (`computed_on_one_thread`), static: with one camera they take
-    microseconds, and handing half of one to a second thread costs more than it saves
-    (the banana: a quarter of a call); with several, splitting them pays (10 blobs with
-    4 cameras ran 6-13% slower on one thread). benchmarks/HISTORY.md."""
-    return cameras.x.shape[0] == 1
+def _one_thread(cameras: Vec, limit: int) -> bool:
+    """Whether kernels of the call run on one thread (`computed_on_one_thread`), static:
+    with few cameras they take microseconds, and handing half of one to a second thread
+    costs more than it saves (the banana with one camera: a quarter of a call). The
+    visibility test stays on one thread up to `SMALL_BATCH` cameras (the banana's Q with
+    two: 0.91-0.95x the time), the integrand with one camera only (with two, value+grad
+    took 1.15-1.18x the time; with four, 10 blobs 6-13%). benchmarks/HISTORY.md."""
+    return cameras.x.shape[0] <= limit
 
 
 def _intervals(events: Float[Array, "m e"]):
@@ -439,7 +440,8 @@ def _events(scene: Scene, poses: Camera, objective, options: VisibilityOptions) 
     samples = sample(jax.lax.stop_gradient(scene), options.grid or scene.grid_cells())
     sense = _sense(scene, samples)
     nearest = _nearest_points(scene, cameras, samples, sense)
-    partition = functools.partial(_camera_partition, one_thread=_one_thread(cameras))
+    one_thread = _one_thread(cameras, SMALL_BATCH)
+    partition = functools.partial(_camera_partition, one_thread=one_thread)
     partitions = jax.vmap(partition, in_axes=(None, 0, None, None, 1, None))(
         scene, poses, samples, sense, nearest.t, options
     )
@@ -507,7 +509,7 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
 
     args = (scene, group_members(events.cameras, events.groups), objective, seen_by_group)
-    integrand = functools.partial(_integrand, one_thread=_one_thread(events.cameras))
+    integrand = functools.partial(_integrand, one_thread=_one_thread(events.cameras, 1))
     integrals = gauss_legendre(integrand, start, end, args, options.quadrature)  # (m, e)
     value = fused_reduce(jnp.sum, integrals, None)
     return value, (used, budget)

@@ -12,7 +12,7 @@ import pytest
 import ocp_jax as ocp
 from ocp_jax import scenes
 from ocp_jax._compile import jit
-from ocp_jax._materialize import computed_on_one_thread
+from ocp_jax._materialize import SMALL_BATCH, computed_on_one_thread
 
 
 def _independent_kernels(x):
@@ -84,9 +84,11 @@ def test_computed_on_one_thread_is_not_split_between_threads():
     compiled = jax.jit(once).lower(t, p).compile()
     assert _split_kernels(compiled) == 0
     np.testing.assert_array_equal(compiled(t, p), plain(t, p))
-    # a vmap over one element (one camera) keeps it on one thread; over several (a batch)
-    # the kernel is larger and split as XLA sees fit
-    for batch, split in ((t[None], False), (jnp.stack([t, 2 * t]), True)):
+    # a vmap over up to SMALL_BATCH elements (the cameras of a call) keeps it on one
+    # thread; over more (a batch of camera sets) the kernel is larger and split as XLA
+    # sees fit
+    for size, split in ((1, False), (SMALL_BATCH, False), (SMALL_BATCH + 1, True)):
+        batch = t[None] * jnp.arange(1.0, size + 1.0)[:, None, None, None]
         batched = jax.jit(jax.vmap(once, (0, None))).lower(batch, p).compile()
         assert (_split_kernels(batched) > 0) == split
         np.testing.assert_array_equal(batched(batch, p), jax.vmap(_polynomial, (0, None))(batch, p))
