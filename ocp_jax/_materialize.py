@@ -20,7 +20,7 @@ def materialize(tree, key):
     XLA duplicates cheap elementwise producers (a curve evaluation is a few hundred
     multiply-adds) into every consumer fusion, and its CPU backend has no multi-output
     fusion. So a curve sampled once and broadcast against many rays would be re-evaluated
-    per element, and a Newton step whose F feeds five updated arrays would evaluate F five
+    per element, and a Newton step whose F feeds four updated arrays would evaluate F four
     times (each copy also costs compile time). `optimization_barrier` does not survive the
     CPU pipeline; a while loop whose trip count depends on the data (one trip) does.
 

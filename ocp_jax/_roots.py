@@ -280,8 +280,9 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     With `store`, each step computes F and F' in one kernel and stores them, as does the
     validity check (`materialize`): XLA's CPU backend otherwise computes F in each
     update that reads it (the bracket's ends, the iterate, the confirmed sign) and in
-    each consumer of the check's (validity, done). Worth it where F is costly (a long polynomial), not where the
-    stored copy's kernels cost more than the repeated arithmetic.
+    each consumer of the check's (validity, done). Worth it where F is costly (a long
+    polynomial), not where the stored copy's kernels cost more than the repeated
+    arithmetic.
     """
     # Each array of the state is a carry of its own: one stacked carry launches fewer
     # kernels per step, but under vmap XLA then evaluates F once per stacked row (the
