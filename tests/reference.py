@@ -536,23 +536,34 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
             # where F is rounding noise of either sign) and may cross it right beside:
             # F / |s - T| there, whose limits at T (taken from the piece after T) keep
             # the sign of F on both sides of a silhouette corner.
+            # (Smooth curves have no corner rays: F is the plain cross product there.)
             at_corner = (P_curve == i) & np.isin(P_t, geo.corners[i])
-            k_after = np.minimum((np.mod(P_t, 1.0) * geo.npieces[i]).round().astype(int),
-                                 geo.npieces[i] - 1)
-            limit = _cross(PC, _eval_local(c, np.mod(P_t, 1.0), k_after)[1])
+            corner_rays = bool(np.any(at_corner))
 
             def F(rows, s, _c=c):
                 value = _cross(PC[rows], _eval_x(_c, s) - C)
+                if not corner_rays:
+                    return value
                 u = np.abs(np.mod(s - P_t[rows] + 0.5, 1.0) - 0.5)
                 deflate = at_corner[rows] & (u > 0)
                 return np.where(deflate, value / np.where(deflate, u, 1.0), value)
 
-            V = F(np.arange(P.shape[0])[:, None], S)
-            U = np.abs(np.mod(S - P_t[:, None] + 0.5, 1.0) - 0.5)
-            V = np.where(at_corner[:, None] & (U == 0), limit[:, None], V)
+            # F at the grid nodes from the curve's points there (F evaluated anew on
+            # every row's grid made the reference 1.3x slower)
+            V = _cross(PC[:, None, :], XC[None, :, :])
+            if corner_rays:
+                k_after = np.minimum((np.mod(P_t, 1.0) * geo.npieces[i]).round().astype(int),
+                                     geo.npieces[i] - 1)
+                limit = _cross(PC, _eval_local(c, np.mod(P_t, 1.0), k_after)[1])
+                U = np.abs(np.mod(S - P_t[:, None] + 0.5, 1.0) - 0.5)
+                deflate = at_corner[:, None] & (U > 0)
+                V = np.where(deflate, V / np.where(deflate, U, 1.0), V)
+                V = np.where(at_corner[:, None] & (U == 0), limit[:, None], V)
 
             def dF(rows, s, _c=c):
                 slope = _cross(PC[rows], eval_curve(_c, s)[1])
+                if not corner_rays:
+                    return slope
                 u = np.mod(s - P_t[rows] + 0.5, 1.0) - 0.5
                 deflate = at_corner[rows] & (u != 0)
                 distance = np.where(deflate, np.abs(u), 1.0)
