@@ -540,13 +540,15 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
             at_corner = (P_curve == i) & np.isin(P_t, geo.corners[i])
             corner_rays = bool(np.any(at_corner))
 
-            def F(rows, s, _c=c):
-                value = _cross(PC[rows], _eval_x(_c, s) - C)
-                if not corner_rays:
-                    return value
+            def deflated(rows, s, value):
+                """(value / |s - T| on corner rays, |s - T|) for values of rows' F at s."""
                 u = np.abs(np.mod(s - P_t[rows] + 0.5, 1.0) - 0.5)
                 deflate = at_corner[rows] & (u > 0)
-                return np.where(deflate, value / np.where(deflate, u, 1.0), value)
+                return np.where(deflate, value / np.where(deflate, u, 1.0), value), u
+
+            def F(rows, s, _c=c):
+                value = _cross(PC[rows], _eval_x(_c, s) - C)
+                return deflated(rows, s, value)[0] if corner_rays else value
 
             # F at the grid nodes from the curve's points there (F evaluated anew on
             # every row's grid made the reference 1.3x slower)
@@ -555,9 +557,7 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
                 k_after = np.minimum((np.mod(P_t, 1.0) * geo.npieces[i]).round().astype(int),
                                      geo.npieces[i] - 1)
                 limit = _cross(PC, _eval_local(c, np.mod(P_t, 1.0), k_after)[1])
-                U = np.abs(np.mod(S - P_t[:, None] + 0.5, 1.0) - 0.5)
-                deflate = at_corner[:, None] & (U > 0)
-                V = np.where(deflate, V / np.where(deflate, U, 1.0), V)
+                V, U = deflated(np.arange(P.shape[0])[:, None], S, V)
                 V = np.where(at_corner[:, None] & (U == 0), limit[:, None], V)
 
             def dF(rows, s, _c=c):
