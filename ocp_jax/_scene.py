@@ -106,6 +106,12 @@ class Scene(eqx.Module):
         t = jnp.asarray(t, self.dtype)
         return self._map(_components, t)
 
+    def point_and_tangent(self, t: Float[Array, "m *shape"]) -> Float[Array, "m 4 *shape"]:
+        """Rows (x, y, x', y') of x_i(t[i]) and x_i'(t[i]) for every curve i
+        (`AbstractCurve.point_and_tangent`)."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map(lambda curve, t: curve.point_and_tangent(t), t)
+
     def components_left(self, t: Float[Array, "m *shape"]) -> tuple[Vec, Vec, Vec]:
         """Left limits of `components` (they differ at corners)."""
         t = jnp.asarray(t, self.dtype)

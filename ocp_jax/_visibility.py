@@ -297,7 +297,7 @@ def _camera_partition(
     tested = _interval_budget(options.max_camera_intervals, fixed, events.shape[1])
     start, end = jax.lax.stop_gradient(_intervals(events))
     t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
-    x_mid, dx_mid = materialize(jax.lax.stop_gradient(scene.components(t_mid)[:2]), scene)
+    x_mid, dx_mid = _stored_points(jax.lax.stop_gradient(scene), t_mid)
     seen_from = Vec.of(frozen.position)
     if conics is not None:
         blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
@@ -328,8 +328,14 @@ def _integrand(t, args, one_thread: bool):
         return computed_on_one_thread(integrand, (scene, t, rest), scene)
     # With several cameras x and x' are stored (the integrand computed whole and stored
     # instead made value+grad with 4 cameras 1.03-1.56x slower, benchmarks/HISTORY.md).
-    x, dx = materialize(scene.components(t)[:2], scene)
-    return _integrand_at(x, dx, *rest)
+    return _integrand_at(*_stored_points(scene, t), *rest)
+
+
+def _stored_points(scene: Scene, t) -> tuple[Vec, Vec]:
+    """x(t) and x'(t) on every curve (row i of t on curve i), computed once and stored
+    (`materialize`) as one array of rows (`Scene.point_and_tangent`)."""
+    rows = materialize(scene.point_and_tangent(t), scene)
+    return Vec(rows[:, 0], rows[:, 1]), Vec(rows[:, 2], rows[:, 3])
 
 
 def _integrand_at(x: Vec, dx: Vec, group, objective, seen):

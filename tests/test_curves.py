@@ -62,6 +62,19 @@ def test_positions_match_reference(curve):
     np.testing.assert_allclose(dx_all, rdx_all, rtol=0, atol=1e-12 * np.abs(rdx).max())
 
 
+def test_point_and_tangent_rows_are_x_and_its_derivative(curve):
+    """The rows (x, y, x', y') that the engine stores, against `derivatives`: at the
+    knots and the seam too (B-splines compute them in one expression of their own)."""
+    t = jnp.asarray(np.stack([T_ALL, T_ALL[::-1]]))  # (2, 16): any shape of t
+    rows = np.asarray(curve.point_and_tangent(t))
+    assert rows.shape == (4, *t.shape)
+    x, dx, _ = (np.moveaxis(np.asarray(a), -1, 0) for a in curve.derivatives(t))
+    np.testing.assert_allclose(rows[:2], x, rtol=0, atol=1e-15 * np.abs(x).max())
+    np.testing.assert_allclose(rows[2:], dx, rtol=0, atol=1e-15 * np.abs(dx).max())
+    scene_rows = ocp.Scene([curve, CURVES["circle"]()]).point_and_tangent(jnp.stack([t, t]))
+    np.testing.assert_array_equal(np.asarray(scene_rows[0]), rows)
+
+
 def _fd4(fn, t, h):
     """Fourth-order central difference of fn at t."""
     return (8 * (fn(t + h) - fn(t - h)) - (fn(t + 2 * h) - fn(t - 2 * h))) / (12 * h)
