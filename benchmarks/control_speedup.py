@@ -9,7 +9,8 @@ each row times the reference (tests/reference.py at evaluate.py's accuracy) and 
 to back, each as its median over about 0.5 s, in five rounds, and prints the median of
 the five ratios (and their range): for the current tree, compiled as evaluate.py
 recommends, and for the control revision, compiled as it was then (a plain `jax.jit`).
-Each runs in a process of its own, the control from a temporary git worktree.
+Each runs in a process of its own, the control from a temporary git worktree (so the
+timing is this script's own: the control's evaluate.py predates `paired_speed_up`).
 
 The control ac1a126 is the engine of the quiet run of 2026-12-02 07:40 (benchmarks/
 HISTORY.md), whose banana with one camera measured 77x there (72-84x paired in the slow
