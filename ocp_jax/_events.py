@@ -541,6 +541,10 @@ def crossover_times(
         # brackets no roots.
         rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
         values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
+        # Only the observed curves' crossovers cut Q's intervals: none are searched for
+        # on the room's walls.
+        observed = jnp.asarray(scene.observed())[:, None]
+        values, slopes = jnp.where(observed, values, 1.0), jnp.where(observed, slopes, 0.0)
         return values[:, None], slopes[:, None]
 
     # Values on the grid from the sampled derivatives (no new curve evaluations).
