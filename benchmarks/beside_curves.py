@@ -58,7 +58,9 @@ def main():
     observed = list(scene.observed())  # a room's walls occlude but are not integrated
     options = ocp.VisibilityOptions()
     value = jax.jit(
-        jax.vmap(lambda s, c: valid_visibility(s, c[None], ocp.VisibleLength(), options), (None, 0))
+        jax.vmap(
+            lambda s, c: valid_visibility(s, c[None], ocp.VisibleLength(), options)[:2], (None, 0)
+        )
     )
     t = np.linspace(0.0, 1.0, 4097)
     dense = np.concatenate([eval_curve(spec, t)[0] for spec in reference])

@@ -42,6 +42,7 @@ from ._smoothed import Smoothed as Smoothed
 from ._svg import load_svg as load_svg
 from ._visibility import VisibilityOptions as VisibilityOptions
 from ._visibility import VisibleIntervals as VisibleIntervals
+from ._visibility import fit_options as fit_options
 from ._visibility import visibility as visibility
 from ._visibility import visible_intervals as visible_intervals
 

@@ -29,7 +29,13 @@ from ._objectives import AbstractLocalObjective, Foreshortened, as_local_objecti
 from ._optimize import OptimizeResult, _best, _problem_and_starts, _tolerance
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, valid_visibility
+from ._visibility import (
+    VisibilityOptions,
+    fit_options,
+    grown_options,
+    valid_visibility,
+    warn_grown,
+)
 
 __all__ = ["SearchResult", "exhaustive", "greedy", "slsqp"]
 
@@ -79,26 +85,36 @@ def _from_rows(rows, layout):
 
 @jit
 def _set_values(scene, objective, options, layout, camera_sets):
-    """Q of every camera set (rows (n, k, r), see `_to_rows`), -inf where undefined."""
+    """Q of every camera set (rows (n, k, r), see `_to_rows`), -inf where undefined, and
+    what each event budget needed ({option: (needed, budget)} per set)."""
 
     def one(rows):
-        q, valid = valid_visibility(scene, _from_rows(rows, layout), objective, options)
-        return jnp.where(valid, q, -jnp.inf)
+        q, valid, needs = valid_visibility(scene, _from_rows(rows, layout), objective, options)
+        return jnp.where(valid, q, -jnp.inf), needs
 
     return jax.lax.map(one, camera_sets, batch_size=64)
 
 
 def _values_of_sets(scene, objective, options, camera_sets: np.ndarray, chunk: int, layout=None):
     """Q of many camera sets (rows, see `_to_rows`), `chunk` at a time (the last chunk
-    padded)."""
+    padded), and the options used: where a chunk's events overflow the budgets, they are
+    grown for its sets (`fit_options`, with a warning) and the chunk evaluated again.
+
+    **Returns:** (values, options).
+    """
     out = []
     for begin in range(0, len(camera_sets), chunk):
         part = camera_sets[begin : begin + chunk]
         pad = chunk - len(part)
-        padded = np.concatenate([part, np.repeat(part[:1], pad, 0)]) if pad else part
-        values = _set_values(scene, objective, options, layout, jnp.asarray(padded))
+        padded = jnp.asarray(np.concatenate([part, np.repeat(part[:1], pad, 0)]) if pad else part)
+        values, needs = _set_values(scene, objective, options, layout, padded)
+        grown = grown_options(options, needs)
+        if grown is not None:
+            fitted = fit_options(scene, _from_rows(padded, layout), objective, grown)
+            options = warn_grown(options, fitted)
+            values, _ = _set_values(scene, objective, options, layout, padded)
         out.append(np.asarray(values)[: len(part)])
-    return np.concatenate(out)
+    return np.concatenate(out), options
 
 
 def _admissible_candidates(scene, placement: AbstractPlacement, resolution: int):
@@ -164,7 +180,7 @@ def greedy(
     sets = candidates[camera_groups(objective, len(candidates))]  # every l-subset
     evaluations, stages = 0, []
     for _ in range(n_cameras - objective.group_size + 1):
-        values = _values_of_sets(scene, objective, options, sets, chunk, layout)
+        values, options = _values_of_sets(scene, objective, options, sets, chunk, layout)
         evaluations += len(sets)
         stages.append(values)
         chosen = sets[int(np.argmax(values))]
@@ -204,7 +220,7 @@ def exhaustive(
     best_value, best_set, stages = -np.inf, None, []
     while block := list(itertools.islice(subsets, chunk)):
         sets = candidates[np.asarray(block)]
-        values = _values_of_sets(scene, objective, options, sets, chunk, layout)
+        values, options = _values_of_sets(scene, objective, options, sets, chunk, layout)
         if values.max() > best_value:
             best_value, best_set = values.max(), sets[int(np.argmax(values))]
         stages.append(best_value)

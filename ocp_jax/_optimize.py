@@ -40,7 +40,7 @@ from ._objectives import (
 )
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, valid_visibility
+from ._visibility import VisibilityOptions, fit_options, valid_visibility
 
 __all__ = ["OptimizeResult", "optimize"]
 
@@ -61,7 +61,7 @@ class Problem(eqx.Module):
         return jax.lax.map(
             lambda p: valid_visibility(
                 self.scene, self.placement.cameras(p), self.objective, self.options
-            ),
+            )[:2],
             params,
         )
 
@@ -70,7 +70,7 @@ class Problem(eqx.Module):
 
     def loss(self, params: Float[Array, "k p"]) -> Float[Array, ""]:
         """-Q / L, NaN where Q is undefined."""
-        q, valid = valid_visibility(
+        q, valid, _ = valid_visibility(
             self.scene, self.placement.cameras(params), self.objective, self.options
         )
         return jnp.where(valid, -q / self.scale, jnp.nan)
@@ -269,8 +269,11 @@ def _problem_and_starts(
         raise ValueError(
             f"starts must have shape (n_starts, n_cameras={n_cameras}, p), got {starts.shape}."
         )
-    problem = Problem(scene, as_local_objective(objective), placement, options, scene_length(scene))
-    camera_groups(problem.objective, n_cameras)  # enough cameras for the objective's groups
+    objective = as_local_objective(objective)
+    camera_groups(objective, n_cameras)  # enough cameras for the objective's groups
+    # Budgets for the starts, with room for the cameras to move (see `fit_options`).
+    options = fit_options(scene, jax.vmap(placement.cameras)(starts), objective, options, 2.0)
+    problem = Problem(scene, objective, placement, options, scene_length(scene))
     return problem, starts
 
 

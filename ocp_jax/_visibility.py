@@ -18,15 +18,18 @@ nearest to the cameras, carry no derivative: the Leibniz terms of the two interv
 meet there cancel.)
 """
 
+import dataclasses
 import functools
 import itertools
+import math
+import warnings
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from ._camera import Camera
 from ._conics import (
@@ -73,7 +76,13 @@ from ._scene import Scene
 from ._smoothed import Smoothed, smoothed_value
 from ._vec import Vec, cross, dot, norm, scale, sub
 
-__all__ = ["VisibilityOptions", "VisibleIntervals", "visibility", "visible_intervals"]
+__all__ = [
+    "VisibilityOptions",
+    "VisibleIntervals",
+    "fit_options",
+    "visibility",
+    "visible_intervals",
+]
 
 
 class VisibilityOptions(eqx.Module):
@@ -88,7 +97,10 @@ class VisibilityOptions(eqx.Module):
       view wedge's edges), `max_range_crossings` (of a camera's range circle): root
       budgets per curve and camera; `max_crossovers`: per curve and pair of camera
       groups (of cameras, or of camera pairs for `Reconstruction`).
-      Exceeding one raises an error naming the option. Every array after the root
+      Called outside any jit, `visibility`, `visible_intervals`, `optimize`, `greedy`,
+      `exhaustive`, `slsqp` and the plots grow an overflowed budget and compile again,
+      with a warning; inside a jit an overflow raises an error naming the option
+      (`fit_options` sizes every budget for given cameras). Every array after the root
       solves is sized by them, used or not: for scenes known to need fewer slots,
       smaller budgets can be a simple speed-up (`benchmarks/budgets.py`: the banana
       and 3 blobs use at most 4 tangency and 6 shadow slots). In a scene of conics only
@@ -561,63 +573,81 @@ def _finite_scene(scene, samples) -> Array:
     return fused_reduce(jnp.all, jnp.isfinite(samples.x.x) & jnp.isfinite(samples.x.y), None)
 
 
-def _failures(scene, events: Events, options, camera_dependent: bool, intervals=None):
-    """Every check on the input and the budgets: a stacked array of failure flags and the
-    message of each (`camera_dependent`: as for `_input_failures`; `intervals`: the union
-    intervals used and their budget, where Q was integrated)."""
+class Budget(NamedTuple):
+    """One static size of the event computation and what a call needed of it."""
+
+    option: str  # the `VisibilityOptions` field
+    needed: Int[Array, ""]  # the largest count over the curves (and cameras)
+    budget: int  # the size the call was compiled with
+    what: str
+
+
+def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
+    """Every budgeted size of the call, with the largest count it had to hold
+    (`intervals`: the union intervals used and their budget, where Q was integrated)."""
     partitions, crossovers = events.partitions, events.crossovers
-    failures = _input_failures(
-        scene, events.poses, events.nearest, events.samples, options.quadrature, camera_dependent
-    )
     budgets = [
-        (partitions.tangents.count, options.max_tangents, "tangency times", "max_tangents"),
-        (partitions.shadows.count, options.max_shadows, "shadow times", "max_shadows"),
+        Budget(
+            "max_tangents",
+            jnp.max(partitions.tangents.count),
+            options.max_tangents,
+            "tangency times",
+        ),
+        Budget(
+            "max_shadows", jnp.max(partitions.shadows.count), options.max_shadows, "shadow times"
+        ),
     ]
     if partitions.ranges is not None:
         budgets.append(
-            (
-                partitions.ranges.count,
+            Budget(
+                "max_range_crossings",
+                jnp.max(partitions.ranges.count),
                 options.max_range_crossings,
                 "range circle crossings",
-                "max_range_crossings",
             )
         )
     fixed = _fixed_slots(scene, partitions.events, partitions.ranges)
     tested = _interval_budget(options.max_camera_intervals, fixed, partitions.events.shape[-1])
-    budgets.append(
-        (
-            fused_reduce(jnp.sum, partitions.events < 1.0),
-            tested,
-            "event intervals of one camera",
-            # (the union of all cameras' intervals then needs more room too)
-            "max_camera_intervals=..., max_intervals",
-        )
-    )
+    count = jnp.max(fused_reduce(jnp.sum, partitions.events < 1.0))
+    budgets.append(Budget("max_camera_intervals", count, tested, "event intervals of one camera"))
     if crossovers is not None:
         budgets.append(
-            (crossovers.count, options.max_crossovers, "crossover times", "max_crossovers")
-        )
-    if intervals is not None:
-        budgets.append((*intervals, "event intervals", "max_intervals"))
-    for count, budget, what, name in budgets:
-        failures.append(
-            (
-                jnp.any(count > budget),
-                f"ocp_jax: more {what} on one curve than the budget of {budget}: pass "
-                f"options=ocp.VisibilityOptions({name}=...) with a larger value.",
+            Budget(
+                "max_crossovers",
+                jnp.max(crossovers.count),
+                options.max_crossovers,
+                "crossover times",
             )
         )
+    if intervals is not None:
+        used, budget = intervals
+        budgets.append(Budget("max_intervals", jnp.max(used), budget, "event intervals"))
+    return budgets
+
+
+def _budget_failures(budgets: list[Budget]):
+    return [
+        (
+            b.needed > b.budget,
+            f"ocp_jax: more {b.what} on one curve than the budget of {b.budget}, in a call "
+            "compiled inside a jit (outside one, ocp_jax sizes its budgets itself): pass "
+            f"options=ocp.VisibilityOptions({b.option}=...) with a larger value, or "
+            "ocp.fit_options(scene, cameras) to size every budget for these cameras.",
+        )
+        for b in budgets
+    ]
+
+
+def _unsettled(events: Events, options):
+    partitions, crossovers = events.partitions, events.crossovers
     searches = [partitions.tangents, partitions.shadows, partitions.ranges, crossovers]
     unsettled = [~jnp.all(roots.settled) for roots in searches if roots is not None]
-    failures.append(
-        (
-            jnp.any(jnp.stack(unsettled)),
-            f"ocp_jax: a root search was not done in {options.newton_iterations} Newton "
-            "steps (a camera very close to a curve?): pass "
-            "options=ocp.VisibilityOptions(newton_iterations=...) with a larger value.",
-        )
+    return (
+        jnp.any(jnp.stack(unsettled)),
+        f"ocp_jax: a root search was not done in {options.newton_iterations} Newton "
+        "steps (a camera very close to a curve?): pass "
+        "options=ocp.VisibilityOptions(newton_iterations=...) with a larger value.",
     )
-    return jnp.stack([f for f, _ in failures]), [message for _, message in failures]
 
 
 def _checked(carrier, failed, messages):
@@ -634,9 +664,9 @@ def _in_scene_frame(scene, cameras) -> tuple[Frame, Scene, Camera]:
     return frame, scene.in_frame(*frame), poses.in_frame(*frame)
 
 
-def _value_and_failures(scene, cameras, objective, options):
-    """Q (exact, or smoothed for a `Smoothed` objective), the failure flags of every
-    check and their messages."""
+def _value_and_checks(scene, cameras, objective, options):
+    """Q (exact, or smoothed for a `Smoothed` objective), the checks on the input (a list
+    of (failure flag, message)) and the budgets of the call (`_budgets`)."""
     objective = as_local_objective(objective)
     frame, scene, poses = _in_scene_frame(scene, cameras)
     groups = camera_groups(objective, poses.shape[0])  # (its error names the user's q)
@@ -648,12 +678,24 @@ def _value_and_failures(scene, cameras, objective, options):
         # (no too-close check: it concerns the exact engine's Gauss-Legendre nodes)
         nearest = _nearest_points(scene, Vec.of(poses.position), samples, sense)
         failures = _input_failures(scene, poses, nearest, samples, options.quadrature, False)
-        failed = jnp.stack([f for f, _ in failures])
-        return frame.scale * value, failed, [message for _, message in failures]
+        return frame.scale * value, failures, []
     events = _events(scene, poses, objective, options)
     value, intervals = _value(scene, events, objective, options)
-    failed, messages = _failures(scene, events, options, not objective.is_constant, intervals)
-    return frame.scale * value, failed, messages
+    failures = _input_failures(
+        scene, poses, events.nearest, events.samples, options.quadrature, not objective.is_constant
+    )
+    failures.append(_unsettled(events, options))
+    return frame.scale * value, failures, _budgets(scene, events, options, intervals)
+
+
+def _stacked(failures):
+    return jnp.stack([f for f, _ in failures]), [message for _, message in failures]
+
+
+def _is_traced(*trees) -> bool:
+    """Whether any array of `trees` is a tracer (the call is inside a jit, grad or vmap)."""
+    leaves = jax.tree.leaves(eqx.filter(trees, eqx.is_array_like))
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in leaves)
 
 
 def visibility(
@@ -672,33 +714,140 @@ def visibility(
     `jax.vmap` and `jax.grad`.
 
     **Arguments:**
+
     - `scene`: the objects.
     - `cameras`: camera positions, shape (k, 2) (or (2,) for one camera).
     - `objective`: local objective q (`VisibleLength()`, `Foreshortened()`,
       `Reconstruction(area)` and `Coverage(m)` of camera groups, or any
       `q(point, tangent, camera) -> scalar`); wrapped in `Smoothed(q, width)`, Q is the
       smoothed visibility of Chapter 6 instead (by quadrature, no events).
-    - `options`: grid size and root budgets, see `VisibilityOptions`.
+    - `options`: grid size and event budgets, see `VisibilityOptions`.
 
     **Returns:** the scalar Q.
 
     Raises (also under jit, via `equinox.error_if`) when a camera is NaN, inside an object
-    or on a curve, or when a root budget is exceeded.
+    or on a curve. Called outside any transformation, a call whose events overflow the
+    budgets of `options` is compiled again with budgets that hold them
+    (`fit_options`), with a warning; inside a jit, grad or vmap an overflow raises an
+    error that names the option (size the budgets beforehand with `fit_options`).
     """
-    return _visibility(scene, _as_input(cameras), objective, options)
+    cameras = _as_input(cameras)
+    if _is_traced(scene, cameras, objective):
+        return _visibility(scene, cameras, objective, options)
+    value, needed = _visibility_and_needs(scene, cameras, objective, options)
+    grown = grown_options(options, needed)
+    if grown is None:
+        return value
+    return visibility(
+        scene,
+        cameras,
+        objective,
+        warn_grown(options, fit_options(scene, cameras, objective, grown)),
+    )
 
 
 @eqx.filter_jit
 def _visibility(scene, cameras, objective, options):
-    return _checked(*_value_and_failures(scene, cameras, objective, options))
+    value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
+    return _checked(value, *_stacked(failures + _budget_failures(budgets)))
 
 
-def valid_visibility(scene, cameras, objective, options) -> tuple[Array, Array]:
-    """(Q, valid) without raising: `valid` is False where `visibility` would raise (a
-    camera inside an object, on a curve or too close to it, an exceeded budget). For
+@eqx.filter_jit
+def _visibility_and_needs(scene, cameras, objective, options):
+    """Q with the input checked, and what each budget needed ({option: (needed, budget)})."""
+    value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
+    return _checked(value, *_stacked(failures)), _needs(budgets)
+
+
+def _needs(budgets: list[Budget]) -> dict[str, tuple[Array, Array]]:
+    return {b.option: (b.needed, jnp.asarray(b.budget)) for b in budgets}
+
+
+def grown_options(options: "VisibilityOptions", needs, headroom: float = 1.0):
+    """`options` with every overflowed budget raised to hold `headroom` times what it
+    needed (to a power of two, so that nearby needs share one compiled program), or None
+    where none overflowed. `needs`: {option: (needed, budget)}, arrays of any shape."""
+    raised = {}
+    for name, (needed, budget) in needs.items():
+        needed, budget = int(np.max(needed)), int(np.max(budget))
+        if needed > budget:
+            raised[name] = max(budget, 1 << max(0, math.ceil(headroom * needed) - 1).bit_length())
+    return dataclasses.replace(options, **raised) if raised else None
+
+
+def warn_grown(old: "VisibilityOptions", new: "VisibilityOptions") -> "VisibilityOptions":
+    changed = {
+        f.name: getattr(new, f.name)
+        for f in dataclasses.fields(new)
+        if getattr(new, f.name) != getattr(old, f.name)
+    }
+    warnings.warn(
+        f"ocp_jax: the events of this scene overflowed the event budgets; compiled again "
+        f"with VisibilityOptions({', '.join(f'{k}={v}' for k, v in changed.items())}) "
+        "(pass these options, or ones from ocp.fit_options, to compile once).",
+        stacklevel=3,
+    )
+    return new
+
+
+def fit_options(
+    scene: Scene,
+    cameras,
+    objective: AbstractLocalObjective = Foreshortened(),
+    options: VisibilityOptions = VisibilityOptions(),
+    headroom: float = 1.0,
+) -> VisibilityOptions:
+    """`options` with every event budget large enough for `scene` seen from each of a
+    batch of camera sets (host-level: call it outside jit, then compile with the result).
+
+    Budgets only grow, each to a power of two that holds `headroom` times the largest
+    count of any camera set whose cameras are valid (camera sets with a camera inside an
+    object or on a curve are skipped). Counts can depend on each other (a camera's
+    intervals on its shadow times), so sizing repeats until nothing overflows.
+
+    **Arguments:**
+
+    - `scene`, `objective`, `options`: as for `visibility`.
+    - `cameras`: one camera set, positions (k, 2) or a `Camera` batched over (k,), or a
+      batch of sets, positions (n, k, 2) or a `Camera` batched over (n, k).
+    - `headroom`: a factor >= 1 of room above the counts seen (for cameras that will
+      move, as in an optimisation).
+
+    **Returns:** a `VisibilityOptions`.
+    """
+    cameras = _as_input(cameras)
+    positions = cameras.position if isinstance(cameras, Camera) else cameras
+    if positions.ndim == 2:
+        cameras = jax.tree.map(lambda a: a[None], cameras)
+    for _ in range(8):
+        grown = grown_options(options, _set_needs(scene, cameras, objective, options), headroom)
+        if grown is None:
+            return options
+        options = grown
+    raise RuntimeError("ocp_jax: fit_options did not settle in 8 rounds; please report this.")
+
+
+@eqx.filter_jit
+def _set_needs(scene, camera_sets, objective, options):
+    def one(cameras):
+        _, failures, budgets = _value_and_checks(scene, cameras, objective, options)
+        valid = ~jnp.any(_stacked(failures)[0])
+        return {
+            name: (jnp.where(valid, needed, 0), budget)
+            for name, (needed, budget) in _needs(budgets).items()
+        }
+
+    return jax.lax.map(one, camera_sets)
+
+
+def valid_visibility(scene, cameras, objective, options):
+    """(Q, valid, needs) without raising: `valid` is False where `visibility` would raise
+    (a camera inside an object, on a curve or too close to it, an overflowed budget);
+    `needs` says what each budget needed ({option: (needed, budget)}, see `grown_options`). For
     optimisers and searches, which must step back from such placements, not stop."""
-    value, failed, _ = _value_and_failures(scene, cameras, objective, options)
-    return value, ~jnp.any(failed)
+    value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
+    failed, _ = _stacked(failures + _budget_failures(budgets))
+    return value, ~jnp.any(failed), _needs(budgets)
 
 
 def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | None = None):
@@ -751,14 +900,34 @@ def visible_intervals(
 
     **Returns:** a `VisibleIntervals`; `.to_list(c, i)` for plain intervals.
     """
-    return _visible_intervals(scene, _as_input(cameras), options)
+    cameras = _as_input(cameras)
+    if _is_traced(scene, cameras):
+        return _visible_intervals(scene, cameras, options, True)[0]
+    intervals, needs = _visible_intervals(scene, cameras, options, False)
+    grown = grown_options(options, needs)
+    if grown is None:
+        return intervals
+    grown = fit_options(scene, cameras, VisibleLength(), grown)
+    return visible_intervals(scene, cameras, warn_grown(options, grown))
 
 
 @eqx.filter_jit
-def _visible_intervals(scene, cameras, options):
+def _visible_intervals(scene, cameras, options, check_budgets: bool):
+    """The intervals, with the input checked (and the budgets, where `check_budgets`),
+    and what each budget needed."""
     _, scene, poses = _in_scene_frame(scene, cameras)
     events = _events(scene, poses, VisibleLength(), options)
     partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
-    start = _checked(start, *_failures(scene, events, options, False))
-    return VisibleIntervals(start, end, partitions.visible, partitions.tangents, partitions.shadows)
+    failures = _input_failures(
+        scene, poses, events.nearest, events.samples, options.quadrature, False
+    )
+    failures.append(_unsettled(events, options))
+    budgets = _budgets(scene, events, options)
+    if check_budgets:
+        failures += _budget_failures(budgets)
+    start = _checked(start, *_stacked(failures))
+    intervals = VisibleIntervals(
+        start, end, partitions.visible, partitions.tangents, partitions.shadows
+    )
+    return intervals, _needs(budgets)

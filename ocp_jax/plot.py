@@ -208,7 +208,7 @@ def plot_landscape(
     positions = np.asarray(placement.cameras(params))
     sets = np.repeat(fixed[None], len(positions), 0)
     sets[:, index] = positions
-    values = _values_of_sets(scene, objective, options, sets, 512)
+    values, _ = _values_of_sets(scene, objective, options, sets, 512)
     values = np.where(np.isfinite(values), values, np.nan)  # -inf: undefined
     if boundary:
         s = np.asarray(params[:, 0])

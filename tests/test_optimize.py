@@ -170,13 +170,17 @@ def test_greedy_drops_inadmissible_candidates():
     np.testing.assert_allclose(np.abs(np.asarray(result.cameras[0])), [3.0, 3.0], atol=1e-12)
 
 
-def test_searches_where_every_set_is_undefined_raise():
-    """No candidate set has a Q (a circle has two tangents from every camera, over a
-    budget of one): a clear error, not a value of -inf."""
+def test_searches_grow_an_overflowed_budget():
+    """A budget too small for the events (a circle has two tangents from every camera,
+    over a budget of one) is grown, with a warning, and the search finds what it finds
+    with the default budgets."""
     tight = ocp.VisibilityOptions(max_tangents=1)
     for search in (ocp.greedy, ocp.exhaustive):
-        with pytest.raises(RuntimeError, match="undefined for every candidate set"):
-            search(CIRCLE, ocp.VisibleLength(), BOX, 1, resolution=3, chunk=16, options=tight)
+        want = search(CIRCLE, ocp.VisibleLength(), BOX, 1, resolution=3, chunk=16)
+        with pytest.warns(UserWarning, match=r"VisibilityOptions\(max_tangents=2"):
+            got = search(CIRCLE, ocp.VisibleLength(), BOX, 1, resolution=3, chunk=16, options=tight)
+        assert float(got.value) == float(want.value)
+        np.testing.assert_array_equal(np.asarray(got.cameras), np.asarray(want.cameras))
 
 
 def test_slsqp_from_the_same_starts():

@@ -1750,7 +1750,7 @@ def test_exceeded_camera_interval_budget_raises():
     with pytest.raises(
         Exception,
         match=r"more event intervals of one camera on one curve than the budget of 2.*"
-        r"max_camera_intervals=\.\.\., max_intervals=",
+        r"max_camera_intervals=",
     ):
         fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
 
