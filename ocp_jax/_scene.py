@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._curves import AbstractConic, AbstractCurve, UnitFrame
+from ._curves import AbstractConic, AbstractCurve, UnitFrame, _is_concrete
+from ._validity import check_scene
 from ._vec import Vec
 
 __all__ = ["Scene"]
@@ -52,6 +53,8 @@ class Scene(eqx.Module):
                     f"Scene curves must be ocp_jax curves (BezierCurve, BSplineCurve, "
                     f"Circle, Ellipse, PiecewiseCurve), got {type(c).__name__}."
                 )
+        if _is_concrete(*jax.tree.leaves(curves)):
+            check_scene(curves, room is not None)
         self.curves = curves
         self.room = room is not None
 

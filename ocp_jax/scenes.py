@@ -12,6 +12,10 @@ the 100 x 80 rectangle centred at (0, 20), encloses it.
 furniture; `room_cameras()` are three directional cameras (90-degree field of view, 9 m
 range) mounted on its walls, 5 cm in front of them (`ROOM_MOUNTS`, the walls moved in by
 5 cm, is where such cameras may go: `PolygonBoundary(ROOM_MOUNTS)`).
+
+`floor(seed, cells, objects)` is a random floor plan (a room of grid cells with furniture
+of every curve type) and `free_points(scene, k)` random cameras in its free space: seeded
+generators for testing on scenes nobody designed.
 """
 
 import jax.numpy as jnp
@@ -24,11 +28,14 @@ from ._scene import Scene
 __all__ = [
     "BANANA_FREE_POINTS",
     "BANANA_RECTANGLE",
+    "FURNITURE",
     "ROOM_MOUNTS",
     "ROOM_WALLS",
     "banana",
     "blobs",
     "circle",
+    "floor",
+    "free_points",
     "room",
     "room_cameras",
     "three_objects",
@@ -92,8 +99,18 @@ def three_objects() -> Scene:
     """A non-convex B-spline, a circle and an ellipse: self- and mutual occlusion."""
     kidney = BSplineCurve(
         jnp.array(
-            [[0.0, 0.0], [1.0, -0.8], [2.2, -0.6], [2.6, 0.4], [1.8, 0.5], [1.0, 0.3],
-             [0.4, 1.0], [1.6, 1.6], [0.6, 2.2], [-0.6, 1.4]]
+            [
+                [0.0, 0.0],
+                [1.0, -0.8],
+                [2.2, -0.6],
+                [2.6, 0.4],
+                [1.8, 0.5],
+                [1.0, 0.3],
+                [0.4, 1.0],
+                [1.6, 1.6],
+                [0.6, 2.2],
+                [-0.6, 1.4],
+            ]
         ),
         degree=3,
     )
@@ -134,3 +151,175 @@ def room_cameras() -> Camera:
         half_fov=np.pi / 4,
         range=9.0,
     )
+
+
+def _grid_room(rng: np.random.Generator, cells: int) -> np.ndarray:
+    """A random simply connected union of `cells` unit grid cells whose boundary is one
+    simple orthogonal polygon (no holes, no cells touching at a corner only), grown
+    cell by cell from one. Returns the boundary's vertices, counter-clockwise, with the
+    collinear ones dropped."""
+    taken = {(0, 0)}
+    while len(taken) < cells:
+        x, y = list(taken)[rng.integers(len(taken))]
+        dx, dy = ((1, 0), (-1, 0), (0, 1), (0, -1))[rng.integers(4)]
+        cell = (x + dx, y + dy)
+        if cell in taken:
+            continue
+        grown = taken | {cell}
+        if _simple_boundary(grown):
+            taken = grown
+    return _boundary(taken)
+
+
+def _edges(taken) -> set:
+    """The directed boundary edges of a union of unit cells, counter-clockwise."""
+    edges = set()
+    for x, y in taken:
+        for a, b, side in (
+            ((x, y), (x + 1, y), (x, y - 1)),
+            ((x + 1, y), (x + 1, y + 1), (x + 1, y)),
+            ((x + 1, y + 1), (x, y + 1), (x, y + 1)),
+            ((x, y + 1), (x, y), (x - 1, y)),
+        ):
+            if side not in taken:
+                edges.add((a, b))
+    return edges
+
+
+def _simple_boundary(taken) -> bool:
+    edges = _edges(taken)
+    starts = [a for a, _ in edges]
+    if len(set(starts)) != len(starts):  # a vertex where two cells touch at a corner
+        return False
+    return len(_loop(edges)) == len(edges)  # one loop: no hole
+
+
+def _loop(edges) -> list:
+    following = dict(edges)
+    start = min(following)
+    loop, vertex = [start], following[start]
+    while vertex != start:
+        loop.append(vertex)
+        vertex = following[vertex]
+    return loop
+
+
+def _boundary(taken) -> np.ndarray:
+    loop = np.asarray(_loop(_edges(taken)), float)
+    before, after = np.roll(loop, 1, axis=0), np.roll(loop, -1, axis=0)
+    turn = (loop[:, 0] - before[:, 0]) * (after[:, 1] - loop[:, 1]) - (
+        loop[:, 1] - before[:, 1]
+    ) * (after[:, 0] - loop[:, 0])
+    return loop[turn != 0]
+
+
+def _furniture(rng: np.random.Generator, kind: str, center, size: float):
+    """One piece of furniture of the given `kind` inside the square of side `size`
+    around `center`."""
+    c = np.asarray(center, float)
+    h = 0.5 * size
+    if kind == "rectangle":  # a rectangle
+        w, d = h * rng.uniform(0.4, 1.0, 2)
+        return PiecewiseCurve.polygon(jnp.asarray(c + [[-w, -d], [w, -d], [w, d], [-w, d]]))
+    if kind == "l_shape":  # an L-shape
+        w, d = h * rng.uniform(0.6, 1.0, 2)
+        a, b = rng.uniform(0.3, 0.7, 2)
+        shape = [[-w, -d], [w, -d], [w, -d + 2 * b * d], [-w + 2 * a * w, -d + 2 * b * d],
+                 [-w + 2 * a * w, d], [-w, d]]  # fmt: skip
+        return PiecewiseCurve.polygon(jnp.asarray(c + np.asarray(shape)))
+    if kind == "triangle":  # a triangle
+        angle = rng.uniform(0, 2 * np.pi) + np.array([0.0, 2.1, 4.2]) + rng.uniform(-0.4, 0.4, 3)
+        r = h * rng.uniform(0.5, 1.0, 3)
+        return PiecewiseCurve.polygon(
+            jnp.asarray(c + np.stack([r * np.cos(angle), r * np.sin(angle)], -1))
+        )
+    if kind == "circle":  # a circle
+        return Circle(jnp.asarray(c), h * rng.uniform(0.3, 0.9))
+    if kind == "ellipse":  # an ellipse
+        return Ellipse(
+            jnp.asarray(c), jnp.asarray(h * rng.uniform(0.3, 0.9, 2)), rng.uniform(0, np.pi)
+        )
+    if kind == "rounded_rectangle":  # a rounded rectangle
+        w, d = size * rng.uniform(0.4, 0.9, 2)
+        return PiecewiseCurve.rounded_rectangle(jnp.asarray(c), w, d, 0.25 * min(w, d))
+    if kind == "blob":  # a B-spline blob
+        return blob(c, h, int(rng.integers(2**31)))
+    raise ValueError(f"unknown kind of furniture {kind!r}; the kinds are {FURNITURE}.")
+
+
+FURNITURE = ("rectangle", "l_shape", "triangle", "circle", "ellipse", "rounded_rectangle", "blob")
+
+
+def floor(
+    seed: int = 0,
+    cells: int = 12,
+    objects: int = 8,
+    cell_size: float = 2.0,
+    kinds: tuple[str, ...] = FURNITURE,
+) -> Scene:
+    """A random floor plan: a room of `cells` grid cells of side `cell_size` (a random,
+    simply connected union; orthogonal walls, about as many as cells) holding `objects`
+    pieces of furniture (at most one per cell, in the middle of its cell, so that none
+    touches another or a wall) of the `kinds` in turn (`FURNITURE`: rectangles,
+    L-shapes, triangles, circles, ellipses, rounded rectangles and B-spline blobs).
+
+    **Arguments:**
+    - `seed`: seeds NumPy's generator; the same seed gives the same floor.
+    - `cells`, `objects`, `cell_size`: the room's size, the number of objects
+      (`objects <= cells`) and the side of a grid cell.
+    - `kinds`: the kinds of furniture, from `FURNITURE` (polygons only: the first
+      three).
+
+    **Returns:** a `Scene` with a room.
+    """
+    if not 1 <= objects <= cells:
+        raise ValueError(f"floor needs 1 <= objects <= cells, got {objects} and {cells}.")
+    rng = np.random.default_rng(seed)
+    walls = _grid_room(rng, cells)
+    taken = sorted({tuple(v) for v in _cells_inside(walls)})
+    chosen = rng.choice(len(taken), objects, replace=False)
+    furniture = [
+        _furniture(
+            rng, kinds[i % len(kinds)], (np.asarray(taken[j]) + 0.5) * cell_size, 0.7 * cell_size
+        )
+        for i, j in enumerate(chosen)
+    ]
+    return Scene(furniture, room=PiecewiseCurve.polygon(jnp.asarray(walls * cell_size)))
+
+
+def _cells_inside(walls: np.ndarray) -> list:
+    """The unit cells of a grid room (from its boundary, by even-odd ray casting)."""
+    low, high = walls.min(0).astype(int), walls.max(0).astype(int)
+    cells = []
+    for x in range(low[0], high[0]):
+        for y in range(low[1], high[1]):
+            px, py = x + 0.5, y + 0.5
+            a, b = walls, np.roll(walls, -1, axis=0)
+            crosses = ((a[:, 1] > py) != (b[:, 1] > py)) & (
+                px
+                < a[:, 0]
+                + (py - a[:, 1])
+                * (b[:, 0] - a[:, 0])
+                / np.where(b[:, 1] == a[:, 1], 1.0, b[:, 1] - a[:, 1])
+            )
+            if np.count_nonzero(crosses) % 2:
+                cells.append((x, y))
+    return cells
+
+
+def free_points(scene: Scene, count: int, seed: int = 0, clearance: float = 0.1) -> jnp.ndarray:
+    """`count` random points of the free space of `scene` (inside the room, outside every
+    object), each at least `clearance` from every curve: cameras for a random floor.
+
+    **Returns:** an array of shape (count, 2).
+    """
+    from ._visibility import signed_distances
+
+    rng = np.random.default_rng(seed)
+    low, high = (np.asarray(b) for b in scene.bounds())
+    found = np.zeros((0, 2))
+    while len(found) < count:
+        trial = rng.uniform(low, high, (4 * count, 2))
+        free = np.all(np.asarray(signed_distances(scene, jnp.asarray(trial))) > clearance, 1)
+        found = np.concatenate([found, trial[free]])
+    return jnp.asarray(found[:count])

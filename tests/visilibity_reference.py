@@ -99,6 +99,25 @@ def _union_length(intervals):
 
 def visible_lengths(outer, holes, camera, epsilon=1e-9, return_vp=False):
     """Visible boundary length of each hole, via visilibity.Visibility_Polygon."""
+    intervals, V = _visible_edge_intervals(outer, holes, camera, epsilon)
+    out = [sum(_union_length(ivs) for ivs in edges) for edges in intervals]
+    return (out, V) if return_vp else out
+
+
+def union_visible_length(outer, holes, cameras, epsilon=1e-9):
+    """Total length of the holes' boundaries that at least one of `cameras` sees: the
+    union, edge by edge, of each camera's visible parts."""
+    per_camera = [_visible_edge_intervals(outer, holes, c, epsilon)[0] for c in cameras]
+    return sum(
+        _union_length([iv for camera in per_camera for iv in camera[h][e]])
+        for h in range(len(holes))
+        for e in range(len(per_camera[0][h]))
+    )
+
+
+def _visible_edge_intervals(outer, holes, camera, epsilon):
+    """For each hole and each of its edges, the intervals (distances from the edge's
+    start) that lie on the camera's visibility polygon; and that polygon."""
     outer, holes, camera = _prepare(outer, holes, camera)
     # VisiLibity validity: outer boundary CCW (area>0), holes CW (area<0).
     if _signed_area(outer) < 0:
@@ -126,14 +145,16 @@ def visible_lengths(outer, holes, camera, epsilon=1e-9, return_vp=False):
     vp = vis.Visibility_Polygon(obs, env, epsilon)
     V = np.array([[vp[i].x(), vp[i].y()] for i in range(vp.n())])
     if len(V) < 3:
-        return ([0.0] * len(holes), V) if return_vp else [0.0] * len(holes)
+        return [[[] for _ in h] for h in holes], V
     A, B = V, np.roll(V, -1, axis=0)  # visibility polygon edges A[k]->B[k]
 
     scale = float(np.max(np.ptp(np.vstack([outer] + holes + [camera[None]]), 0)))
     tol = max(epsilon, 1e-12 * scale)  # distance tolerance "point on line"
     out = []
     for h in holes:
-        total = 0.0
+        edges = []
+        # (holes were reoriented clockwise: an edge's intervals are measured from its
+        # start in that orientation, the same for every camera)
         for a, b in zip(h, np.roll(h, -1, axis=0)):
             d = b - a
             L = float(np.hypot(*d))
@@ -149,6 +170,6 @@ def visible_lengths(outer, holes, camera, epsilon=1e-9, return_vp=False):
                 lo, hi = max(min(ta, tb), 0.0), min(max(ta, tb), L)
                 if hi > lo:
                     ivs.append((lo, hi))
-            total += _union_length(ivs)
-        out.append(total)
-    return (out, V) if return_vp else out
+            edges.append(ivs)
+        out.append(edges)
+    return out, V

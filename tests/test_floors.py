@@ -1,0 +1,155 @@
+"""Random floor plans (`ocp.scenes.floor`) with default options, and invalid geometry.
+
+The floors are seeded but not designed: the engine must size its own budgets for them
+(`fit_options`), agree with VisiLibity1 on polygon floors and with the NumPy reference on
+mixed ones, and refuse scenes that are not valid.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import central_differences, to_reference
+from reference import reference_visibility
+from visilibity_reference import union_visible_length
+
+import ocp_jax as ocp
+
+POLYGONS = ("rectangle", "l_shape", "triangle")
+CURVED = ("circle", "blob", "ellipse", "rounded_rectangle")
+
+
+def _outline(curve) -> np.ndarray:
+    return np.asarray(curve.points[:, 0], float)
+
+
+@pytest.mark.parametrize("cameras", [16])  # (one camera: test_polygons.py)
+def test_polygon_floor_matches_visilibity(cameras):
+    """Visible length of a random polygon floor, default options, against the union of
+    VisiLibity1's visibility polygons (1e-9 relative)."""
+    scene = ocp.scenes.floor(seed=cameras, cells=10, objects=5, kinds=POLYGONS)
+    positions = ocp.scenes.free_points(scene, cameras, seed=cameras)
+    value = float(ocp.visibility(scene, positions, ocp.VisibleLength()))
+    holes = [_outline(c) for c in scene.objects]
+    want = union_visible_length(_outline(scene.curves[-1]), holes, np.asarray(positions))
+    assert want > 0
+    assert abs(value / want - 1) <= 1e-9
+
+
+def test_mixed_floor_matches_reference():
+    """Foreshortened Q of a floor with curved furniture, against the NumPy reference."""
+    scene = ocp.scenes.floor(seed=7, cells=6, objects=4, kinds=CURVED)
+    positions = ocp.scenes.free_points(scene, 2, seed=7)
+    value = float(ocp.visibility(scene, positions, ocp.Foreshortened()))
+    want = reference_visibility(
+        to_reference(scene),
+        np.asarray(positions),
+        "foreshortened",
+        observed=list(np.asarray(scene.observed())),
+    )
+    assert abs(value / want - 1) <= 1e-7
+
+
+def test_floor_gradient_matches_central_differences():
+    """The gradient of Q on a random floor, under jit with options sized beforehand by
+    `fit_options`, against central differences (1e-6 relative to the gradient's size)."""
+    scene = ocp.scenes.floor(seed=3, cells=8, objects=4, kinds=("rectangle", "circle", "blob"))
+    positions = ocp.scenes.free_points(scene, 2, seed=3, clearance=0.3)
+    options = ocp.fit_options(scene, positions, ocp.Foreshortened(), headroom=2.0)
+    value = jax.jit(lambda c: ocp.visibility(scene, c, ocp.Foreshortened(), options))
+    grad = np.asarray(
+        jax.jit(jax.grad(lambda c: ocp.visibility(scene, c, ocp.Foreshortened(), options)))(
+            positions
+        )
+    )
+    want = central_differences(lambda c: float(value(c)), np.asarray(positions), 1e-6)
+    assert np.max(np.abs(grad - want)) <= 1e-6 * max(1.0, np.max(np.abs(want)))
+
+
+def test_overflow_inside_jit_names_the_option_and_fit_options():
+    scene = ocp.scenes.floor(seed=1, cells=8, objects=4)
+    positions = ocp.scenes.free_points(scene, 1, seed=1)
+    tight = ocp.VisibilityOptions(max_shadows=1)
+    fn = jax.jit(lambda c: ocp.visibility(scene, c, ocp.VisibleLength(), tight))
+    with pytest.raises(Exception, match=r"max_shadows=.*ocp.fit_options"):
+        fn(positions)
+    with pytest.warns(UserWarning, match=r"compiled again with VisibilityOptions\(max_shadows="):
+        grown = ocp.visibility(scene, positions, ocp.VisibleLength(), tight)
+    fitted = ocp.fit_options(scene, positions, ocp.VisibleLength(), tight)
+    assert fitted.max_shadows > 1
+    assert float(grown) == float(ocp.visibility(scene, positions, ocp.VisibleLength(), fitted))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_random_floors_are_valid_scenes(seed):
+    """No false refusals: random floors of every size and kind are valid scenes, and
+    their free points lie in free space."""
+    cells = (4, 12, 24)[seed]
+    scene = ocp.scenes.floor(seed=seed, cells=cells, objects=max(1, cells // 2))
+    assert scene.room and len(scene.objects) == max(1, cells // 2)
+    positions = ocp.scenes.free_points(scene, 8, seed=seed)
+    from ocp_jax._visibility import signed_distances
+
+    assert np.all(np.asarray(signed_distances(scene, positions)) > 0.1)
+
+
+_POLYGON = ocp.PiecewiseCurve.polygon
+_SQUARE_ROOM = jnp.array([[-5.0, -5.0], [5.0, -5.0], [5.0, 5.0], [-5.0, 5.0]])
+INVALID = {
+    "bow-tie": (
+        lambda: ocp.Scene([_POLYGON(jnp.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]))]),
+        "curve 0 crosses or touches itself",
+    ),
+    "overlapping circles": (
+        lambda: ocp.Scene([ocp.Circle(jnp.zeros(2), 1.0), ocp.Circle(jnp.array([1.5, 0.0]), 1.0)]),
+        "curve 0 and curve 1 cross or touch",
+    ),
+    "touching circles": (
+        lambda: ocp.Scene([ocp.Circle(jnp.zeros(2), 1.0), ocp.Circle(jnp.array([2.0, 0.0]), 1.0)]),
+        "curve 0 and curve 1 cross or touch",
+    ),
+    "square crossing a circle": (
+        lambda: ocp.Scene(
+            [
+                _POLYGON(jnp.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])),
+                ocp.Circle(jnp.array([2.5, 1.0]), 1.0),
+            ]
+        ),
+        "curve 0 and curve 1 cross or touch",
+    ),
+    "a blob inside a circle": (
+        lambda: ocp.Scene([ocp.Circle(jnp.zeros(2), 3.0), ocp.scenes.blob((0.0, 0.0), 1.0, 0)]),
+        "curve 1 lies inside curve 0",
+    ),
+    "outside the room": (
+        lambda: ocp.Scene([ocp.Circle(jnp.array([20.0, 0.0]), 1.0)], room=_POLYGON(_SQUARE_ROOM)),
+        "curve 0 lies outside the room",
+    ),
+    "crossing a wall": (
+        lambda: ocp.Scene([ocp.Circle(jnp.array([5.0, 0.0]), 1.0)], room=_POLYGON(_SQUARE_ROOM)),
+        "curve 0 and the room cross or touch",
+    ),
+    "zero-length edge": (
+        lambda: ocp.Scene(
+            [_POLYGON(jnp.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))]
+        ),
+        "not regular",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", INVALID)
+def test_invalid_geometry_is_refused(name):
+    build, message = INVALID[name]
+    with pytest.raises(ValueError, match=message):
+        build()
+
+
+def test_zero_length_edge_of_a_long_polygon_is_named():
+    """A repeated vertex among hundreds of edges, where the curve's regularity check
+    samples too coarsely to be sure to see it: the scene check names the edge."""
+    angle = np.linspace(0.0, 2 * np.pi, 300, endpoint=False)
+    vertices = np.stack([np.cos(angle), np.sin(angle)], -1)
+    vertices = np.insert(vertices, 123, vertices[123], axis=0)
+    with pytest.raises(ValueError, match="edge of zero length|not regular"):
+        ocp.Scene([_POLYGON(jnp.asarray(vertices))])
