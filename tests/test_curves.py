@@ -71,7 +71,8 @@ def test_point_and_tangent_rows_are_x_and_its_derivative(curve):
     x, dx, _ = (np.moveaxis(np.asarray(a), -1, 0) for a in curve.derivatives(t))
     np.testing.assert_allclose(rows[:2], x, rtol=0, atol=1e-15 * np.abs(x).max())
     np.testing.assert_allclose(rows[2:], dx, rtol=0, atol=1e-15 * np.abs(dx).max())
-    scene_rows = ocp.Scene([curve, CURVES["circle"]()]).point_and_tangent(jnp.stack([t, t]))
+    far = ocp.Circle(jnp.array([1e3, 1e3]), 1.0)  # (apart from the curve: a valid scene)
+    scene_rows = ocp.Scene([curve, far]).point_and_tangent(jnp.stack([t, t]))
     np.testing.assert_array_equal(np.asarray(scene_rows[0]), rows)
 
 
@@ -261,7 +262,9 @@ def test_breakpoints():
 
 
 def test_scene_evaluates_every_curve():
-    curves = [CURVES[k]() for k in ("bezier_c2", "bspline3", "circle", "ellipse", "banana")]
+    names = ("bezier_c2", "bspline3", "circle", "ellipse", "banana")
+    # each moved 200 units along x from the one before, so that none touches another
+    curves = [CURVES[k]().in_frame(jnp.array([-200.0 * i, 0.0]), 1.0) for i, k in enumerate(names)]
     scene = ocp.Scene(curves)
     assert len(scene) == 5
     t = np.stack([T_SMOOTH + 0.001 * i for i in range(5)])
