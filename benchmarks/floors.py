@@ -23,20 +23,12 @@ from pathlib import Path
 import jax
 
 jax.config.update("jax_enable_x64", True)
-import numpy as np  # noqa: E402
+import numpy as np
 
-import ocp_jax as ocp  # noqa: E402
+import ocp_jax as ocp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from visilibity_reference import visible_lengths  # noqa: E402
-
-
-def outline(curve, n: int = 64) -> np.ndarray:
-    """A polygon's vertices, or a smooth curve as an n-gon."""
-    points = getattr(curve, "points", None)
-    if points is not None and points.shape[1] == 1:
-        return np.asarray(points[:, 0], float)
-    return np.asarray(curve(jax.numpy.arange(n) / n), float)
+from visilibity_reference import outline, visible_lengths
 
 
 def median_time(fn, repeat: int) -> float:

@@ -32,9 +32,8 @@ from ._scene import Scene
 from ._visibility import (
     VisibilityOptions,
     fit_options,
-    grown_options,
     valid_visibility,
-    warn_grown,
+    with_grown_budgets,
 )
 
 __all__ = ["SearchResult", "exhaustive", "greedy", "slsqp"]
@@ -107,12 +106,11 @@ def _values_of_sets(scene, objective, options, camera_sets: np.ndarray, chunk: i
         part = camera_sets[begin : begin + chunk]
         pad = chunk - len(part)
         padded = jnp.asarray(np.concatenate([part, np.repeat(part[:1], pad, 0)]) if pad else part)
-        values, needs = _set_values(scene, objective, options, layout, padded)
-        grown = grown_options(options, needs)
-        if grown is not None:
-            fitted = fit_options(scene, _from_rows(padded, layout), objective, grown)
-            options = warn_grown(options, fitted)
-            values, _ = _set_values(scene, objective, options, layout, padded)
+        values, options = with_grown_budgets(
+            lambda o, sets=padded: _set_values(scene, objective, o, layout, sets),
+            lambda o, sets=padded: fit_options(scene, _from_rows(sets, layout), objective, o),
+            options,
+        )
         out.append(np.asarray(values)[: len(part)])
     return np.concatenate(out), options
 

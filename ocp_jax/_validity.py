@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["check_scene"]
+__all__ = ["check_scene", "inside_polygon"]
 
 _REFINE = 8  # chords per grid cell of a curved piece
 
@@ -72,7 +72,7 @@ def _segment_distances(a0, a1, b0, b1):
     return np.where(crossing, 0.0, ends)
 
 
-def _inside(points, polygon) -> np.ndarray:
+def inside_polygon(points, polygon) -> np.ndarray:
     """Whether each point lies inside the closed polygon (even-odd rule)."""
     a, b = polygon[None], np.roll(polygon, -1, axis=0)[None]
     px, py = points[:, None, 0], points[:, None, 1]
@@ -110,7 +110,10 @@ def _zero_length_edge(curve) -> int | None:
 def check_scene(curves, room: bool) -> None:
     """Raise a ValueError that names the curves and the place where `curves` (the last
     one the room where `room`) do not form a valid scene (see the module's docstring)."""
-    name = lambda i: "the room" if room and i == len(curves) - 1 else f"curve {i}"  # noqa: E731
+
+    def name(i):
+        return "the room" if room and i == len(curves) - 1 else f"curve {i}"
+
     for i, curve in enumerate(curves):
         edge = _zero_length_edge(curve)
         if edge is not None:
@@ -146,14 +149,16 @@ def check_scene(curves, room: bool) -> None:
                 )
             vi, vj = lines[i][0], lines[j][0]
             if room and j == len(curves) - 1:
-                if not _inside(vi[:1], vj)[0]:
+                if not inside_polygon(vi[:1], vj)[0]:
                     raise ValueError(
                         f"ocp_jax: {name(i)} lies outside the room (near "
                         f"{np.round(vi[0], 6).tolist()}): every object must be inside it."
                     )
-            elif overlap and (_inside(vi[:1], vj)[0] or _inside(vj[:1], vi)[0]):
-                inner, outer = (i, j) if _inside(vi[:1], vj)[0] else (j, i)
-                raise ValueError(
-                    f"ocp_jax: {name(inner)} lies inside {name(outer)}: objects must not "
-                    "nest (model a hole as part of one object's outline)."
-                )
+            elif overlap:
+                # (curves that do not meet nest where one vertex of one is inside the other)
+                for inner, outer in ((i, j), (j, i)):
+                    if inside_polygon(lines[inner][0][:1], lines[outer][0])[0]:
+                        raise ValueError(
+                            f"ocp_jax: {name(inner)} lies inside {name(outer)}: objects must "
+                            "not nest (model a hole as part of one object's outline)."
+                        )

@@ -638,16 +638,24 @@ def _budget_failures(budgets: list[Budget]):
     ]
 
 
-def _unsettled(events: Events, options):
+def _event_failures(scene, events: Events, options, camera_dependent: bool):
+    """The checks on the input (`_input_failures`) and on the root searches: a list of
+    (failure flag, message)."""
     partitions, crossovers = events.partitions, events.crossovers
+    failures = _input_failures(
+        scene, events.poses, events.nearest, events.samples, options.quadrature, camera_dependent
+    )
     searches = [partitions.tangents, partitions.shadows, partitions.ranges, crossovers]
     unsettled = [~jnp.all(roots.settled) for roots in searches if roots is not None]
-    return (
-        jnp.any(jnp.stack(unsettled)),
-        f"ocp_jax: a root search was not done in {options.newton_iterations} Newton "
-        "steps (a camera very close to a curve?): pass "
-        "options=ocp.VisibilityOptions(newton_iterations=...) with a larger value.",
+    failures.append(
+        (
+            jnp.any(jnp.stack(unsettled)),
+            f"ocp_jax: a root search was not done in {options.newton_iterations} Newton "
+            "steps (a camera very close to a curve?): pass "
+            "options=ocp.VisibilityOptions(newton_iterations=...) with a larger value.",
+        )
     )
+    return failures
 
 
 def _checked(carrier, failed, messages):
@@ -681,10 +689,7 @@ def _value_and_checks(scene, cameras, objective, options):
         return frame.scale * value, failures, []
     events = _events(scene, poses, objective, options)
     value, intervals = _value(scene, events, objective, options)
-    failures = _input_failures(
-        scene, poses, events.nearest, events.samples, options.quadrature, not objective.is_constant
-    )
-    failures.append(_unsettled(events, options))
+    failures = _event_failures(scene, events, options, not objective.is_constant)
     return frame.scale * value, failures, _budgets(scene, events, options, intervals)
 
 
@@ -734,16 +739,12 @@ def visibility(
     cameras = _as_input(cameras)
     if _is_traced(scene, cameras, objective):
         return _visibility(scene, cameras, objective, options)
-    value, needed = _visibility_and_needs(scene, cameras, objective, options)
-    grown = grown_options(options, needed)
-    if grown is None:
-        return value
-    return visibility(
-        scene,
-        cameras,
-        objective,
-        warn_grown(options, fit_options(scene, cameras, objective, grown)),
+    value, _ = with_grown_budgets(
+        lambda o: _visibility_and_needs(scene, cameras, objective, o),
+        lambda o: fit_options(scene, cameras, objective, o),
+        options,
     )
+    return value
 
 
 @eqx.filter_jit
@@ -763,7 +764,34 @@ def _needs(budgets: list[Budget]) -> dict[str, tuple[Array, Array]]:
     return {b.option: (b.needed, jnp.asarray(b.budget)) for b in budgets}
 
 
-def grown_options(options: "VisibilityOptions", needs, headroom: float = 1.0):
+def with_grown_budgets(compute, fit, options: "VisibilityOptions"):
+    """`compute(options) -> (result, needs)` outside any jit, with budgets that hold its
+    events: where `needs` ({option: (needed, budget)}) shows an overflow, `fit` sizes
+    every budget from the grown options and `compute` runs once more with them, with a
+    warning that names them.
+
+    **Returns:** (result, the options it was computed with).
+    """
+    result, needs = compute(options)
+    grown = _grown_options(options, needs)
+    if grown is None:
+        return result, options
+    fitted = fit(grown)
+    changed = {
+        f.name: getattr(fitted, f.name)
+        for f in dataclasses.fields(fitted)
+        if getattr(fitted, f.name) != getattr(options, f.name)
+    }
+    warnings.warn(
+        f"ocp_jax: the events of this scene overflowed the event budgets; compiled again "
+        f"with VisibilityOptions({', '.join(f'{k}={v}' for k, v in changed.items())}) "
+        "(pass these options, or ones from ocp.fit_options, to compile once).",
+        stacklevel=3,
+    )
+    return compute(fitted)[0], fitted
+
+
+def _grown_options(options: "VisibilityOptions", needs, headroom: float = 1.0):
     """`options` with every overflowed budget raised to hold `headroom` times what it
     needed (to a power of two, so that nearby needs share one compiled program), or None
     where none overflowed. `needs`: {option: (needed, budget)}, arrays of any shape."""
@@ -773,21 +801,6 @@ def grown_options(options: "VisibilityOptions", needs, headroom: float = 1.0):
         if needed > budget:
             raised[name] = max(budget, 1 << max(0, math.ceil(headroom * needed) - 1).bit_length())
     return dataclasses.replace(options, **raised) if raised else None
-
-
-def warn_grown(old: "VisibilityOptions", new: "VisibilityOptions") -> "VisibilityOptions":
-    changed = {
-        f.name: getattr(new, f.name)
-        for f in dataclasses.fields(new)
-        if getattr(new, f.name) != getattr(old, f.name)
-    }
-    warnings.warn(
-        f"ocp_jax: the events of this scene overflowed the event budgets; compiled again "
-        f"with VisibilityOptions({', '.join(f'{k}={v}' for k, v in changed.items())}) "
-        "(pass these options, or ones from ocp.fit_options, to compile once).",
-        stacklevel=3,
-    )
-    return new
 
 
 def fit_options(
@@ -820,7 +833,7 @@ def fit_options(
     if positions.ndim == 2:
         cameras = jax.tree.map(lambda a: a[None], cameras)
     for _ in range(8):
-        grown = grown_options(options, _set_needs(scene, cameras, objective, options), headroom)
+        grown = _grown_options(options, _set_needs(scene, cameras, objective, options), headroom)
         if grown is None:
             return options
         options = grown
@@ -843,7 +856,7 @@ def _set_needs(scene, camera_sets, objective, options):
 def valid_visibility(scene, cameras, objective, options):
     """(Q, valid, needs) without raising: `valid` is False where `visibility` would raise
     (a camera inside an object, on a curve or too close to it, an overflowed budget);
-    `needs` says what each budget needed ({option: (needed, budget)}, see `grown_options`). For
+    `needs` says what each budget needed ({option: (needed, budget)}, see `with_grown_budgets`). For
     optimisers and searches, which must step back from such placements, not stop."""
     value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
     failed, _ = _stacked(failures + _budget_failures(budgets))
@@ -903,12 +916,12 @@ def visible_intervals(
     cameras = _as_input(cameras)
     if _is_traced(scene, cameras):
         return _visible_intervals(scene, cameras, options, True)[0]
-    intervals, needs = _visible_intervals(scene, cameras, options, False)
-    grown = grown_options(options, needs)
-    if grown is None:
-        return intervals
-    grown = fit_options(scene, cameras, VisibleLength(), grown)
-    return visible_intervals(scene, cameras, warn_grown(options, grown))
+    intervals, _ = with_grown_budgets(
+        lambda o: _visible_intervals(scene, cameras, o, False),
+        lambda o: fit_options(scene, cameras, VisibleLength(), o),
+        options,
+    )
+    return intervals
 
 
 @eqx.filter_jit
@@ -919,10 +932,7 @@ def _visible_intervals(scene, cameras, options, check_budgets: bool):
     events = _events(scene, poses, VisibleLength(), options)
     partitions = events.partitions
     start, end = jax.vmap(_intervals)(partitions.events)
-    failures = _input_failures(
-        scene, poses, events.nearest, events.samples, options.quadrature, False
-    )
-    failures.append(_unsettled(events, options))
+    failures = _event_failures(scene, events, options, False)
     budgets = _budgets(scene, events, options)
     if check_budgets:
         failures += _budget_failures(budgets)

@@ -24,6 +24,7 @@ import numpy as np
 from ._camera import Camera
 from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse, PiecewiseCurve
 from ._scene import Scene
+from ._validity import inside_polygon
 
 __all__ = [
     "BANANA_FREE_POINTS",
@@ -276,7 +277,7 @@ def floor(
         raise ValueError(f"floor needs 1 <= objects <= cells, got {objects} and {cells}.")
     rng = np.random.default_rng(seed)
     walls = _grid_room(rng, cells)
-    taken = sorted({tuple(v) for v in _cells_inside(walls)})
+    taken = _cells_inside(walls)
     chosen = rng.choice(len(taken), objects, replace=False)
     furniture = [
         _furniture(
@@ -288,23 +289,11 @@ def floor(
 
 
 def _cells_inside(walls: np.ndarray) -> list:
-    """The unit cells of a grid room (from its boundary, by even-odd ray casting)."""
+    """The unit cells of a grid room, from its boundary."""
     low, high = walls.min(0).astype(int), walls.max(0).astype(int)
-    cells = []
-    for x in range(low[0], high[0]):
-        for y in range(low[1], high[1]):
-            px, py = x + 0.5, y + 0.5
-            a, b = walls, np.roll(walls, -1, axis=0)
-            crosses = ((a[:, 1] > py) != (b[:, 1] > py)) & (
-                px
-                < a[:, 0]
-                + (py - a[:, 1])
-                * (b[:, 0] - a[:, 0])
-                / np.where(b[:, 1] == a[:, 1], 1.0, b[:, 1] - a[:, 1])
-            )
-            if np.count_nonzero(crosses) % 2:
-                cells.append((x, y))
-    return cells
+    cells = [(x, y) for x in range(low[0], high[0]) for y in range(low[1], high[1])]
+    inside = inside_polygon(np.asarray(cells, float) + 0.5, walls)
+    return [cell for cell, keep in zip(cells, inside) if keep]
 
 
 def free_points(scene: Scene, count: int, seed: int = 0, clearance: float = 0.1) -> jnp.ndarray:

@@ -11,16 +11,13 @@ import numpy as np
 import pytest
 from helpers import central_differences, to_reference
 from reference import reference_visibility
-from visilibity_reference import union_visible_length
+from visilibity_reference import outline, union_visible_length
 
 import ocp_jax as ocp
+from ocp_jax._visibility import signed_distances
 
 POLYGONS = ("rectangle", "l_shape", "triangle")
 CURVED = ("circle", "blob", "ellipse", "rounded_rectangle")
-
-
-def _outline(curve) -> np.ndarray:
-    return np.asarray(curve.points[:, 0], float)
 
 
 @pytest.mark.parametrize("cameras", [16])  # (one camera: test_polygons.py)
@@ -30,8 +27,8 @@ def test_polygon_floor_matches_visilibity(cameras):
     scene = ocp.scenes.floor(seed=cameras, cells=10, objects=5, kinds=POLYGONS)
     positions = ocp.scenes.free_points(scene, cameras, seed=cameras)
     value = float(ocp.visibility(scene, positions, ocp.VisibleLength()))
-    holes = [_outline(c) for c in scene.objects]
-    want = union_visible_length(_outline(scene.curves[-1]), holes, np.asarray(positions))
+    holes = [outline(c) for c in scene.objects]
+    want = union_visible_length(outline(scene.curves[-1]), holes, np.asarray(positions))
     assert want > 0
     assert abs(value / want - 1) <= 1e-9
 
@@ -88,8 +85,6 @@ def test_random_floors_are_valid_scenes(seed):
     scene = ocp.scenes.floor(seed=seed, cells=cells, objects=max(1, cells // 2))
     assert scene.room and len(scene.objects) == max(1, cells // 2)
     positions = ocp.scenes.free_points(scene, 8, seed=seed)
-    from ocp_jax._visibility import signed_distances
-
     assert np.all(np.asarray(signed_distances(scene, positions)) > 0.1)
 
 

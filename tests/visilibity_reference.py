@@ -17,6 +17,15 @@ import numpy as np
 import visilibity as vis
 
 
+def outline(curve, n: int = 64) -> np.ndarray:
+    """The polygon VisiLibity sees for an ocp_jax curve: a polygon's own vertices, any
+    other curve as the n-gon through x(j / n)."""
+    points = getattr(curve, "points", None)
+    if points is not None and points.shape[1] == 1:
+        return np.asarray(points[:, 0], float)
+    return np.asarray(curve(np.arange(n) / n), float)
+
+
 def _clean(poly):
     p = np.asarray(poly, dtype=float).reshape(-1, 2)
     if len(p) > 1 and np.allclose(p[0], p[-1], rtol=0, atol=0):
