@@ -124,11 +124,11 @@ def union_visible_length(outer, holes, cameras, epsilon=1e-9):
     )
 
 
-def _visible_edge_intervals(outer, holes, camera, epsilon):
-    """For each hole and each of its edges, the intervals (distances from the edge's
-    start) that lie on the camera's visibility polygon; and that polygon."""
-    outer, holes, camera = _prepare(outer, holes, camera)
-    # VisiLibity validity: outer boundary CCW (area>0), holes CW (area<0).
+def environment(outer, holes, epsilon=1e-9):
+    """VisiLibity's environment of a room `outer` (None: a large square around the
+    holes) and the obstacles `holes`, checked; and the two, oriented as VisiLibity
+    needs (outer counter-clockwise, holes clockwise)."""
+    outer, holes, _ = _prepare(outer, holes, np.zeros(2))
     if _signed_area(outer) < 0:
         outer = outer[::-1]
     holes = [h[::-1] if _signed_area(h) > 0 else h for h in holes]
@@ -145,6 +145,11 @@ def _visible_edge_intervals(outer, holes, camera, epsilon):
             "environment not epsilon-valid (self-intersecting, "
             "touching/overlapping holes, or hole outside room)"
         )
+    return env, outer, holes
+
+
+def visibility_polygon(env, camera, epsilon=1e-9) -> np.ndarray:
+    """The vertices of the camera's visibility polygon in `env` (`environment`)."""
     obs = vis.Point(float(camera[0]), float(camera[1]))
     if not obs._in(env, epsilon):
         raise ValueError("camera is not in free space")
@@ -152,7 +157,17 @@ def _visible_edge_intervals(outer, holes, camera, epsilon):
     obs.snap_to_boundary_of(env, epsilon)
     obs.snap_to_vertices_of(env, epsilon)
     vp = vis.Visibility_Polygon(obs, env, epsilon)
-    V = np.array([[vp[i].x(), vp[i].y()] for i in range(vp.n())])
+    return np.array([[vp[i].x(), vp[i].y()] for i in range(vp.n())])
+
+
+def _visible_edge_intervals(outer, holes, camera, epsilon):
+    """For each hole and each of its edges, the intervals (distances from the edge's
+    start) that lie on the camera's visibility polygon; and that polygon."""
+    camera = np.asarray(camera, dtype=float).reshape(2)
+    if outer is None:
+        outer = _default_outer([_clean(h) for h in holes], camera)
+    env, outer, holes = environment(outer, holes, epsilon)
+    V = visibility_polygon(env, camera, epsilon)
     if len(V) < 3:
         return [[[] for _ in h] for h in holes], V
     A, B = V, np.roll(V, -1, axis=0)  # visibility polygon edges A[k]->B[k]
