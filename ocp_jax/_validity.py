@@ -51,10 +51,8 @@ def _point_segment_distance(p, a, b):
 
 
 def _segment_distances(a0, a1, b0, b1):
-    """Distances between segments [a0, a1] (n, 2) and [b0, b1] (l, 2): an (n, l) array,
+    """Distances between the segments [a0, a1] and [b0, b1], pair by pair (arrays (n, 2)),
     0 where they cross."""
-    a0, a1 = a0[:, None], a1[:, None]
-    b0, b1 = b0[None], b1[None]
 
     def orient(p, q, r):
         return np.sign(
@@ -85,17 +83,28 @@ def inside_polygon(points, polygon) -> np.ndarray:
 def _meet(line_a, line_b, tolerance, same: bool = False):
     """Where two polylines meet: (index in a, index in b) of the first pair of chords
     closer than their sags plus `tolerance`, or None (`same`: one polyline, whose
-    neighbouring chords are skipped)."""
+    neighbouring chords are skipped). Only chords whose boxes, widened by that margin,
+    overlap are measured."""
     (va, sa), (vb, sb) = line_a, line_b
-    distance = _segment_distances(va, np.roll(va, -1, 0), vb, np.roll(vb, -1, 0))
-    close = distance <= sa[:, None] + sb[None] + tolerance
+    ea, eb = np.roll(va, -1, 0), np.roll(vb, -1, 0)
+    margin = sa[:, None] + sb[None] + tolerance
+    low_a, high_a = np.minimum(va, ea), np.maximum(va, ea)
+    low_b, high_b = np.minimum(vb, eb), np.maximum(vb, eb)
+    near = np.all(
+        (low_a[:, None] <= high_b[None] + margin[..., None])
+        & (low_b[None] <= high_a[:, None] + margin[..., None]),
+        axis=-1,
+    )
     if same:
         n = len(va)
         gap = np.abs(np.arange(n)[:, None] - np.arange(n)[None])
-        close &= np.minimum(gap, n - gap) > 1
+        near &= np.minimum(gap, n - gap) > 1
+    i, j = np.nonzero(near)
+    close = _segment_distances(va[i], ea[i], vb[j], eb[j]) <= margin[i, j]
     if not close.any():
         return None
-    return np.unravel_index(np.argmax(close), close.shape)
+    first = np.argmax(close)
+    return i[first], j[first]
 
 
 def _zero_length_edge(curve) -> int | None:
