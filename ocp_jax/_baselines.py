@@ -260,7 +260,7 @@ def slsqp(
     from each start in turn, with the placement's constraints passed to SLSQP. Same
     arguments and result as `optimize`; `num_evaluations` counts SLSQP's calls of the
     value-and-gradient function."""
-    problem, starts = _problem_and_starts(
+    problem, starts, _ = _problem_and_starts(
         scene, objective, placement, n_cameras, n_starts, key, starts, max_steps, options
     )
     starts = np.asarray(starts)

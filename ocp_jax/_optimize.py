@@ -40,7 +40,7 @@ from ._objectives import (
 )
 from ._placement import AbstractPlacement
 from ._scene import Scene
-from ._visibility import VisibilityOptions, fit_options, valid_visibility
+from ._visibility import VisibilityOptions, fit_options, valid_visibility, with_grown_budgets
 
 __all__ = ["OptimizeResult", "optimize"]
 
@@ -56,12 +56,13 @@ class Problem(eqx.Module):
     options: VisibilityOptions
     scale: Float[Array, ""]  # the scene's total length
 
-    def values(self, params: Float[Array, "s k p"]) -> tuple[Array, Array]:
-        """(Q, valid) of every parameter set, one at a time (`lax.map`)."""
+    def values(self, params: Float[Array, "s k p"]) -> tuple[Array, Array, dict]:
+        """(Q, valid, needs) of every parameter set, one at a time (`lax.map`; needs:
+        what each event budget needed, see `valid_visibility`)."""
         return jax.lax.map(
             lambda p: valid_visibility(
                 self.scene, self.placement.cameras(p), self.objective, self.options
-            )[:2],
+            ),
             params,
         )
 
@@ -220,7 +221,7 @@ def _best(problem, params, status, num_steps, evaluations, seconds, history, pat
     """The best admissible start and its Q (from `_values`, compiled already for the
     starts: no second compilation of Q for one set)."""
     placement, scene = problem.placement, problem.scene
-    q, valid = _values(problem, params)
+    q, valid, _ = _values(problem, params)
     cameras = jax.vmap(placement.cameras)(params)
     violation = jax.vmap(lambda c: placement.violation(c, scene))(cameras)
     admissible = np.asarray(valid & (violation <= tolerance))
@@ -252,7 +253,8 @@ def _problem_and_starts(
     scene, objective, placement, n_cameras, n_starts, key, starts, max_steps, options
 ) -> tuple[Problem, Array]:
     """Check the arguments shared by the multi-start optimisers (`optimize`, `slsqp`)
-    and build the problem and the starting parameters (s, k, p)."""
+    and build the problem, the starting parameters (s, k, p) and whether each start is
+    valid."""
     if not isinstance(placement, AbstractPlacement):
         raise TypeError(
             "optimize needs a placement, e.g. ocp.RectangleBoundary(center, width, height); "
@@ -271,10 +273,21 @@ def _problem_and_starts(
         )
     objective = as_local_objective(objective)
     camera_groups(objective, n_cameras)  # enough cameras for the objective's groups
-    # Budgets for the starts, with room for the cameras to move (see `fit_options`).
-    options = fit_options(scene, jax.vmap(placement.cameras)(starts), objective, options, 2.0)
-    problem = Problem(scene, objective, placement, options, scene_length(scene))
-    return problem, starts
+    length = scene_length(scene)
+
+    def at_starts(options):
+        problem = Problem(scene, objective, placement, options, length)
+        _, valid, needs = _values(problem, starts)
+        return (problem, valid), needs
+
+    # Where the starts' events overflow the budgets, budgets with room for the cameras
+    # to move (twice the starts' counts).
+    (problem, valid_start), _ = with_grown_budgets(
+        at_starts,
+        lambda o: fit_options(scene, jax.vmap(placement.cameras)(starts), objective, o, 2.0),
+        options,
+    )
+    return problem, starts, valid_start
 
 
 def _tolerance(placement: AbstractPlacement, tolerance: float | None) -> float:
@@ -322,7 +335,7 @@ def optimize(
 
     **Returns:** an `OptimizeResult`.
     """
-    problem, starts = _problem_and_starts(
+    problem, starts, valid_start = _problem_and_starts(
         scene, objective, placement, n_cameras, n_starts, key, starts, max_steps, options
     )
     constrained = placement.has_constraints()
@@ -333,7 +346,6 @@ def optimize(
     shapes = jax.eval_shape(problem.constraints, starts[0])
     multipliers = tuple(jnp.zeros((count, *s.shape), s.dtype) for s in shapes)
     penalty = jnp.ones((count,), starts.dtype)
-    _, valid_start = _values(problem, starts)
     params, multipliers, penalty, valid_start = _shard_starts(
         starts, multipliers, penalty, valid_start
     )

@@ -63,20 +63,6 @@ def test_floor_gradient_matches_central_differences():
     assert np.max(np.abs(grad - want)) <= 1e-6 * max(1.0, np.max(np.abs(want)))
 
 
-def test_overflow_inside_jit_names_the_option_and_fit_options():
-    scene = ocp.scenes.floor(seed=1, cells=8, objects=4)
-    positions = ocp.scenes.free_points(scene, 1, seed=1)
-    tight = ocp.VisibilityOptions(max_shadows=1)
-    fn = jax.jit(lambda c: ocp.visibility(scene, c, ocp.VisibleLength(), tight))
-    with pytest.raises(Exception, match=r"max_shadows=.*ocp.fit_options"):
-        fn(positions)
-    with pytest.warns(UserWarning, match=r"compiled again with VisibilityOptions\(max_shadows="):
-        grown = ocp.visibility(scene, positions, ocp.VisibleLength(), tight)
-    fitted = ocp.fit_options(scene, positions, ocp.VisibleLength(), tight)
-    assert fitted.max_shadows > 1
-    assert float(grown) == float(ocp.visibility(scene, positions, ocp.VisibleLength(), fitted))
-
-
 @pytest.mark.parametrize("seed", range(3))
 def test_random_floors_are_valid_scenes(seed):
     """No false refusals: random floors of every size and kind are valid scenes, and

@@ -1728,8 +1728,27 @@ def test_exceeded_shadow_budget_raises():
     beyond the small one, 2 shadow times (first crossings) > max_shadows = 1."""
     C, cb, R_, cs, r = TWO_CIRCLE_CASES[0]
     fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, ocp.VisibilityOptions(max_shadows=1)))
-    with pytest.raises(Exception, match=r"more shadow times on one curve than the budget of 1.*max_shadows="):
+    with pytest.raises(
+        Exception,
+        match=r"more shadow times on one curve than the budget of 1.*max_shadows=.*ocp.fit_options",
+    ):
         fn(H.two_circles(cb, R_, cs, r), jnp.asarray([C]))
+
+
+def test_exceeded_budget_outside_jit_is_grown_with_a_warning():
+    """Called outside any jit, the same overflow compiles again with the budgets that
+    `fit_options` gives, says so, and returns the Q of those budgets."""
+    C, cb, R_, cs, r = TWO_CIRCLE_CASES[0]
+    scene, camera = H.two_circles(cb, R_, cs, r), jnp.asarray([C])
+    tight = ocp.VisibilityOptions(max_shadows=1)
+    with pytest.warns(UserWarning, match=r"compiled again with VisibilityOptions\(max_shadows=2\)"):
+        grown = ocp.visibility(scene, camera, FS, tight)
+    fitted = ocp.fit_options(scene, camera, FS, tight)
+    assert fitted == ocp.VisibilityOptions(max_shadows=2)
+    assert float(grown) == float(ocp.visibility(scene, camera, FS, fitted))
+    # (budgets only size padding: the default ones, 16 shadow slots, give the same Q)
+    default = float(ocp.visibility(scene, camera, FS))
+    assert abs(float(grown) / default - 1) <= 1e-14
 
 
 def test_exceeded_tangency_budget_raises():
