@@ -178,14 +178,14 @@ def conic_distances(
     return jnp.abs(radial - 1.0) * ratio, outward, t
 
 
-def conic_occluded(frames: UnitFrame, camera: Vec, query: Vec) -> Array:
+def conic_occluded(frames: UnitFrame, camera: Vec, query: Vec, curve: Array) -> Array:
     """Whether another conic crosses the open segment from `camera` to each query point
-    (arrays (m, q), point q on conic i): a root lambda in (0, 1) of |C' + lambda M_j (P -
-    C)|^2 = 1 for some conic j != i."""
+    (arrays (q,), point k on conic `curve[k]`): a root lambda in (0, 1) of
+    |C' + lambda M_j (P - C)|^2 = 1 for some conic j != curve[k]."""
     m = frames.center.shape[0]
-    origin = _to_unit(frames, camera.map(lambda a: a[None, None, None]), shift=True)
+    origin = _to_unit(frames, camera.map(lambda a: a[None, None]), shift=True)
     direction = _to_unit(frames, sub(query, camera).map(lambda a: a[None]), shift=False)
-    real, _, (near, far) = _unit_circle_crossings(origin, direction)  # (m_j, m_i, q)
+    real, _, (near, far) = _unit_circle_crossings(origin, direction)  # (m_j, q)
     between = ((near > 0.0) & (near < 1.0)) | ((far > 0.0) & (far < 1.0))
-    crossing = real & between & ~np.eye(m, dtype=bool)[:, :, None]
+    crossing = real & between & (jnp.arange(m)[:, None] != curve[None])
     return jnp.any(crossing, axis=0)

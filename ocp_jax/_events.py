@@ -305,14 +305,17 @@ class GrazingProbes(NamedTuple):
     end: Vec  # x_j - C at the cell's end node
 
 
-def grid_cell(t, samples: Samples) -> Int[Array, "..."]:
+def grid_cell(t, samples: Samples, curve=None) -> Int[Array, "..."]:
     """The index of the grid cell [t_c, t_c+1) that holds each t in [0, 1] (t = 1 in the
-    last); on a camera's grid (`with_nearest_node`), t has a row per curve."""
+    last); on a camera's grid (`with_nearest_node`), t has a row per curve, or, given
+    `curve` (of t's shape), lies on those curves."""
     if samples.t.ndim == 1:
         return _uniform_cell(t, samples.t.shape[0] - 1)
     # The cell c of the uniform grid, or the next where the extra node lies before t.
     cell = _uniform_cell(t, samples.t.shape[1] - 2)
-    return cell + (jnp.take_along_axis(samples.t, cell + 1, 1) <= t)
+    if curve is None:
+        return cell + (jnp.take_along_axis(samples.t, cell + 1, 1) <= t)
+    return cell + (samples.t[curve, cell + 1] <= t)
 
 
 def _uniform_cell(t, cells: int):

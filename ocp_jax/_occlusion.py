@@ -31,7 +31,6 @@ event times and the integrand).
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from ._events import GrazingProbes, Samples, grid_cell
@@ -133,58 +132,68 @@ def _grazing(value, start, end, depth, reach):
     return (value * start < 0) & (value * end < 0) & (depth > 0) & (depth < reach)
 
 
-def facing(camera: Vec, sense: Float[Array, " m"], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "m q"]:
-    """Whether the free side of each query point (arrays (m, q) on every curve i) faces
-    the camera; a point facing away is hidden by its own object."""
-    return sense[:, None] * cross(dx_mid, sub(x_mid, camera)) > 0
+def facing(camera: Vec, sense: Float[Array, "*q"], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "*q"]:
+    """Whether the free side of each query point faces the camera (`sense`: that of each
+    point's curve); a point facing away is hidden by its own object."""
+    return sense * cross(dx_mid, sub(x_mid, camera)) > 0
 
 
 def visible_points(
     camera: Vec,
     grid: Samples,
     sense: Float[Array, " m"],
-    t_mid: Float[Array, "m q"],
+    curve: Int[Array, " q"],
+    t_mid: Float[Array, " q"],
     x_mid: Vec,
     dx_mid: Vec,
     probes: GrazingProbes,
     pieces: Int[Array, "m n"] | None = None,
     one_thread: bool = False,
-) -> Bool[Array, "m q"]:
-    """chi(t_mid[i, k], camera) for query points x_mid, x'_mid (arrays (m, q)) on every
-    curve i, on the camera's grid (`_events.with_nearest_node`), with its tangency points
-    as `probes` of grazing lines of sight (on that grid); `pieces`: the smooth piece of
-    each cell of the grid (`_events.grid_pieces`, None where every curve is one); with
+) -> Bool[Array, " q"]:
+    """chi(t_mid[k], camera) for query points x_mid, x'_mid (arrays (q,)), point k on curve
+    `curve[k]`, on the camera's grid (`_events.with_nearest_node`), with its tangency
+    points as `probes` of grazing lines of sight (on that grid); `pieces`: the smooth piece
+    of each cell of the grid (`_events.grid_pieces`, None where every curve is one); with
     `one_thread`, the test on the own curve is one kernel on one thread
-    (`computed_on_one_thread`)."""
-    m = t_mid.shape[0]
+    (`computed_on_one_thread`). The queries are a flat list over the scene, so that a
+    camera's test costs what its intervals are, not the most any curve has."""
+    m = grid.t.shape[0]
     h = jnp.diff(grid.t)  # (m, N + 1)
-    d = sub(x_mid, camera)  # (m, q)
+    d = sub(x_mid, camera)  # (q,)
     reach = dot(d, d)
     sight = sub(grid.x, camera)
+    query_cell = grid_cell(t_mid, grid, curve)
+    own_row = jnp.arange(m)[None] == curve[:, None]  # (q, m)
+    # The cells tested with the own curve's deflated function below: on the query's own
+    # curve, those of its smooth piece (across a corner g is no continuation of its
+    # trivial root at t_m: r = g / p there is not smooth, its slope beside the corner
+    # grows as the jump of g' over the distance to t_m, and the cell's Hermite
+    # interpolant turns and shows a pair of crossings).
+    same_piece = None
+    deflated_cells = own_row[..., None]
+    if pieces is not None:
+        same_piece = pieces[curve] == pieces[curve, query_cell][:, None]  # (q, N + 1)
+        deflated_cells = deflated_cells & same_piece[:, None]
 
-    # Every other curve j (static indices, none for a single curve): arrays
-    # (m, q, m - 1, N + 1).
-    other = np.array([[j for j in range(m) if j != i] for i in range(m)], int).reshape(m, m - 1)
-    dd = d.map(lambda a: a[:, :, None, None])
-    sight_j = sight.map(lambda a: a[other][:, None])
-    dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[other][:, None])))
-    others = _crosses_segment(
-        cross(dd, sight_j),
-        dg_j,
-        h[other][:, None],
-        linear_depth(dot(dd, sight_j), reach[:, :, None, None]),
+    # Every curve's cells but those: arrays (q, m, N + 1).
+    dd = d.map(lambda a: a[:, None, None])
+    sight_j = sight.map(lambda a: a[None])
+    dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None])))
+    plain = _crosses_segment(
+        cross(dd, sight_j), dg_j, h[None], linear_depth(dot(dd, sight_j), reach[:, None, None])
     )
-    blocked = fused_reduce(jnp.any, others, (-1, -2))
-    on_other = jax.tree.map(lambda a: a[other][:, None], probes)  # (m, 1, m - 1, r)
+    blocked = fused_reduce(jnp.any, plain & ~deflated_cells, (-1, -2))
+    on_other = jax.tree.map(lambda a: a[None], probes)  # (1, m, r)
     blocked = blocked | fused_reduce(
         jnp.any,
         on_other.valid
+        & ~own_row[..., None]
         & _grazing(
             cross(dd, on_other.sight),
             cross(dd, on_other.start),
             cross(dd, on_other.end),
             dot(dd, on_other.sight),
-            reach[:, :, None, None],
+            reach[:, None, None],
         ),
         (-1, -2),
     )
@@ -195,22 +204,23 @@ def visible_points(
     # p = u (1 - u) (1 + u), u = t - t_mid: r = g / p, r' = (g' - r p') / p; at a node
     # on a root of p, r takes its limit g'(t_mid) / p' and r' is set to 0 (not its
     # limit; the cell's interpolant only needs it roughly); and the depth's excess over
-    # the query point's, e = (D - reach) / p -> x'(t_mid) . d / p' there.
-    dq = d.map(lambda a: a[:, :, None])
-    own_sight = sight.map(lambda a: a[:, None])
-    g = cross(dq, own_sight)  # (m, q, N + 1)
-    u = grid.t[:, None] - t_mid[:, :, None]
+    # the query point's, e = (D - reach) / p -> x'(t_mid) . d / p' there. Arrays
+    # (q, N + 2), the own curve's row of the grid.
+    dq = d.map(lambda a: a[:, None])
+    own_sight = sight.map(lambda a: a[curve])
+    g = cross(dq, own_sight)
+    u = grid.t[curve] - t_mid[:, None]
     deflator = _deflator(u)
     deflator_slope = 1.0 - 3.0 * u * u
     tolerance = 1e4 * jnp.finfo(u.dtype).eps
     near = (jnp.abs(u) <= tolerance) | (jnp.abs(1.0 - jnp.abs(u)) <= tolerance)
     divisor = jnp.where(near, 1.0, deflator)
-    r_mid = cross(d, dx_mid)[:, :, None]
+    r_mid = cross(d, dx_mid)[:, None]
     r = jnp.where(near, r_mid / deflator_slope, g / divisor)
-    reach_q = reach[:, :, None]
+    reach_q = reach[:, None]
     excess = jnp.where(
         near,
-        dot(d, dx_mid)[:, :, None] / deflator_slope,
+        dot(d, dx_mid)[:, None] / deflator_slope,
         (dot(dq, own_sight) - reach_q) / divisor,
     )
 
@@ -222,45 +232,34 @@ def visible_points(
     flat = float(jnp.finfo(u.dtype).eps) ** (1 / 3)
     flat = (jnp.abs(u) <= flat) | (jnp.abs(1.0 - jnp.abs(u)) <= flat)
 
-    dg = grid.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[:, None])))
+    dg = grid.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[curve])))
     dr = jax.tree.map(lambda s: jnp.where(flat, 0.0, (s - r * deflator_slope) / divisor), dg)
 
-    def crosses_own(r, dr, h, excess, deflator, reach, r_mid, undeflated):
+    def crosses_own(r, dr, h, excess, deflator, reach, r_mid, same_piece):
         in_segment = deflated_depth(excess, deflator, reach, r, r_mid)
         crosses = _crosses_segment(r, dr, h, in_segment)
-        if undeflated is not None:  # cells off the query's piece: as on another curve
-            g, dg, depth, same_piece = undeflated
-            plain = _crosses_segment(g, dg, h, linear_depth(depth, reach))
-            crosses = jnp.where(same_piece, crosses, plain)
+        if same_piece is not None:  # (the other pieces' cells are tested above)
+            crosses = crosses & same_piece
         return fused_reduce(jnp.any, crosses)
 
-    # Across a corner g is no continuation of its trivial root at t_m: there r = g / p
-    # is not smooth (its slope beside the corner grows as the jump of g' over the
-    # distance to t_m, and the cell's Hermite interpolant turns and shows a pair of
-    # crossings), so cells on other pieces than the query's are tested on g itself.
-    undeflated = None
-    if pieces is not None:
-        query_piece = jnp.take_along_axis(pieces, grid_cell(t_mid, grid), 1)
-        same_piece = pieces[:, None, :] == query_piece[:, :, None]
-        undeflated = (g, dg, dot(dq, own_sight), same_piece)
-    args = (r, dr, h[:, None], excess, deflator, reach_q, r_mid, undeflated)
+    args = (r, dr, h[curve], excess, deflator, reach_q, r_mid, same_piece)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
 
     # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)
     # and r at the ends of their cells; not in the query point's own cell, where r is
     # deflated and the side of a crossing is decided as above.
-    on_own = jax.tree.map(lambda a: a[:, None], probes)  # (m, 1, r)
-    cell = jnp.broadcast_to(on_own.cell, (m, t_mid.shape[1], on_own.cell.shape[-1]))
+    on_own = jax.tree.map(lambda a: a[curve], probes)  # (q, r)
     own = own | fused_reduce(
         jnp.any,
         on_own.valid
-        & (cell != grid_cell(t_mid, grid)[:, :, None])
+        & (on_own.cell != query_cell[:, None])
         & _grazing(
-            cross(dq, on_own.sight) * _deflator(on_own.t - t_mid[:, :, None]),
-            jnp.take_along_axis(r, cell, -1),
-            jnp.take_along_axis(r, cell + 1, -1),
+            cross(dq, on_own.sight) * _deflator(on_own.t - t_mid[:, None]),
+            jnp.take_along_axis(r, on_own.cell, -1),
+            jnp.take_along_axis(r, on_own.cell + 1, -1),
             dot(dq, on_own.sight),
             reach_q,
         ),
+        -1,
     )
-    return facing(camera, sense, x_mid, dx_mid) & ~blocked & ~own
+    return facing(camera, sense[curve], x_mid, dx_mid) & ~blocked & ~own

@@ -71,7 +71,7 @@ from ._objectives import (
 from ._occlusion import facing, in_view, orientation, visible_points
 from ._quadrature import gauss_legendre
 from ._reductions import fused_reduce, sorted_rows
-from ._roots import safe_divisor
+from ._roots import first_true, safe_divisor
 from ._scene import Scene
 from ._smoothed import Smoothed, smoothed_value
 from ._vec import Vec, cross, dot, norm, scale, sub
@@ -111,11 +111,11 @@ class VisibilityOptions(eqx.Module):
       are integrated (the budgets above are per camera and rarely all used at once); None
       (default) takes the panels and corners plus half of the cameras' event budgets
       (for a scene of conics, all of its closed-form event slots).
-    - `max_camera_intervals`: per curve and camera, the intervals of the camera's own
-      partition that are tested for visibility (the test of every query point against
-      every curve is the costliest step of scenes with many objects); None (default)
-      takes the corners plus half of the camera's event budgets, which for one camera
-      admits exactly the events that the default `max_intervals` admits.
+    - `max_camera_intervals`: per camera, the intervals of its own partition (of
+      positive length, over the whole scene) that are tested for visibility (the test of
+      every query point against every curve is the costliest step of scenes with many
+      objects); None (default) takes every curve's corners and first interval plus half
+      of every curve's root slots (`fit_options` sets it to what given cameras need).
     - `quadrature`: Gauss-Legendre nodes per interval; intervals are also cut at each
       curve's panel `breakpoints`. 16 nodes give ~1e-12 relative error for cameras at
       a fair distance; a camera very close to a curve makes q = cos^2 nearly singular
@@ -258,6 +258,22 @@ def _fixed_slots(scene: Scene, events, ranges: Roots | None) -> int:
     return scene.corners()[0].shape[1] if scene.has_corners else 0
 
 
+def _camera_interval_budget(scene: Scene, options, slots: int, fixed: int) -> int:
+    """The static number of one camera's intervals (of positive length, over the whole
+    scene) that are tested for visibility: `options.max_camera_intervals`, or by default
+    every curve's fixed events (its real corners; for a scene of conics, its closed-form
+    events) and its first interval, plus half of every curve's root slots (the cameras'
+    root budgets are rarely all used at once)."""
+    m = len(scene)
+    if options.max_camera_intervals is not None:
+        return min(options.max_camera_intervals, m * slots)
+    if scene.conics_only:
+        kept = m * fixed
+    else:
+        kept = int(scene.corners()[1].sum()) if scene.has_corners else 0
+    return min(m * slots, kept + m * (1 + (slots - fixed) // 2))
+
+
 def _interval_budget(option: int | None, fixed: int, slots: int) -> int:
     """A static budget of the intervals between `slots` sorted events (padded with t = 1)
     that are kept: `option`, or by default the `fixed` ones (breakpoints, corners,
@@ -303,27 +319,37 @@ def _camera_partition(
         ranges = range_times(scene, camera, pose.range, samples, options.max_range_crossings, iters)
         pieces.append(ranges.t)
     events = sorted_rows(jnp.concatenate(pieces, 1))
-    # The visibility decision carries no derivative. Only the first `tested` intervals
-    # are tested; the others are padding at t = 1 (their count is checked in `_failures`).
-    fixed = _fixed_slots(scene, events, ranges)
-    tested = _interval_budget(options.max_camera_intervals, fixed, events.shape[1])
+    # The visibility decision carries no derivative. The intervals of positive length,
+    # over the whole scene, are tested (at most `tested`: their count is checked in
+    # `_budgets`), as one flat list of queries.
     start, end = jax.lax.stop_gradient(_intervals(events))
-    t_mid = 0.5 * (start[:, :tested] + end[:, :tested])
-    x_mid, dx_mid = _stored_points(jax.lax.stop_gradient(scene), t_mid)
+    m, slots = events.shape
+    tested = _camera_interval_budget(scene, options, slots, _fixed_slots(scene, events, ranges))
+    index, filled, _ = first_true((end > start).ravel(), tested)
+    curve = index // slots
+    t_mid = (0.5 * (start + end)).ravel()[index]
+    x_mid, dx_mid = jax.tree.map(
+        lambda a: a.ravel()[index],
+        _stored_points(jax.lax.stop_gradient(scene), 0.5 * (start + end)),
+    )
     seen_from = Vec.of(frozen.position)
     if conics is not None:
-        blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid)
-        visible = facing(seen_from, sense, x_mid, dx_mid) & ~blocked
+        blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid, curve)
+        visible = facing(seen_from, sense[curve], x_mid, dx_mid) & ~blocked
     else:
         smooth = None  # the smooth piece of each cell of the camera's grid, for corners
         if scene.has_corners:
             smooth = grid_pieces(scene.pieces(samples.t.shape[0] - 1), grid)
         probes = grazing_probes(camera, grid, tangents, points)  # on the camera's grid
         visible = visible_points(
-            seen_from, grid, sense, t_mid, x_mid, dx_mid, probes, smooth, one_thread
+            seen_from, grid, sense, curve, t_mid, x_mid, dx_mid, probes, smooth, one_thread
         )
-    padding = jnp.zeros((visible.shape[0], events.shape[1] - tested), bool)
-    visible = jnp.concatenate([visible & in_view(frozen, x_mid), padding], 1)
+    visible = visible & in_view(frozen, x_mid) & filled
+    # (slots past the count drop out: their index is out of range)
+    visible = (
+        jnp.zeros(m * slots, bool).at[jnp.where(filled, index, m * slots)].set(visible, mode="drop")
+    )
+    visible = visible.reshape(m, slots)
     return CameraPartition(events, visible, tangents, shadows, ranges)
 
 
@@ -591,10 +617,13 @@ def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
             "max_tangents",
             jnp.max(partitions.tangents.count),
             options.max_tangents,
-            "tangency times",
+            "tangency times on one curve",
         ),
         Budget(
-            "max_shadows", jnp.max(partitions.shadows.count), options.max_shadows, "shadow times"
+            "max_shadows",
+            jnp.max(partitions.shadows.count),
+            options.max_shadows,
+            "shadow times on one curve",
         ),
     ]
     if partitions.ranges is not None:
@@ -603,25 +632,31 @@ def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
                 "max_range_crossings",
                 jnp.max(partitions.ranges.count),
                 options.max_range_crossings,
-                "range circle crossings",
+                "range circle crossings on one curve",
             )
         )
+    slots = partitions.events.shape[-1]
     fixed = _fixed_slots(scene, partitions.events, partitions.ranges)
-    tested = _interval_budget(options.max_camera_intervals, fixed, partitions.events.shape[-1])
-    count = jnp.max(fused_reduce(jnp.sum, partitions.events < 1.0))
-    budgets.append(Budget("max_camera_intervals", count, tested, "event intervals of one camera"))
+    tested = _camera_interval_budget(scene, options, slots, fixed)
+    start, end = jax.vmap(_intervals)(partitions.events)
+    count = jnp.max(fused_reduce(jnp.sum, end > start, (-1, -2)))
+    budgets.append(
+        Budget("max_camera_intervals", count, tested, "event intervals of one camera in the scene")
+    )
     if crossovers is not None:
         budgets.append(
             Budget(
                 "max_crossovers",
                 jnp.max(crossovers.count),
                 options.max_crossovers,
-                "crossover times",
+                "crossover times on one curve",
             )
         )
     if intervals is not None:
         used, budget = intervals
-        budgets.append(Budget("max_intervals", jnp.max(used), budget, "event intervals"))
+        budgets.append(
+            Budget("max_intervals", jnp.max(used), budget, "event intervals on one curve")
+        )
     return budgets
 
 
@@ -629,7 +664,7 @@ def _budget_failures(budgets: list[Budget]):
     return [
         (
             b.needed > b.budget,
-            f"ocp_jax: more {b.what} on one curve than the budget of {b.budget}, in a call "
+            f"ocp_jax: more {b.what} than the budget of {b.budget}, in a call "
             "compiled inside a jit (outside one, ocp_jax sizes its budgets itself): pass "
             f"options=ocp.VisibilityOptions({b.option}=...) with a larger value, or "
             "ocp.fit_options(scene, cameras) to size every budget for these cameras.",
@@ -813,10 +848,14 @@ def fit_options(
     """`options` with every event budget large enough for `scene` seen from each of a
     batch of camera sets (host-level: call it outside jit, then compile with the result).
 
-    Budgets only grow, each to a power of two that holds `headroom` times the largest
-    count of any camera set whose cameras are valid (camera sets with a camera inside an
-    object or on a curve are skipped). Counts can depend on each other (a camera's
-    intervals on its shadow times), so sizing repeats until nothing overflows.
+    Root budgets only grow, each to a power of two that holds `headroom` times the
+    largest count of any camera set whose cameras are valid (camera sets with a camera
+    inside an object or on a curve are skipped). Counts can depend on each other (a
+    camera's intervals on its shadow times), so sizing repeats until nothing overflows.
+    Interval budgets left to the scene (`max_intervals`, `max_camera_intervals` None) are
+    then set to the power of two that holds `headroom` times what the cameras need (at
+    most the scene's default): the intervals tested and integrated are most of the cost
+    of a scene with many objects.
 
     **Arguments:**
 
@@ -833,11 +872,24 @@ def fit_options(
     if positions.ndim == 2:
         cameras = jax.tree.map(lambda a: a[None], cameras)
     for _ in range(8):
-        grown = _grown_options(options, _set_needs(scene, cameras, objective, options), headroom)
+        needs = _set_needs(scene, cameras, objective, options)
+        grown = _grown_options(options, needs, headroom)
         if grown is None:
-            return options
+            return _fitted_intervals(options, needs, headroom)
         options = grown
     raise RuntimeError("ocp_jax: fit_options did not settle in 8 rounds; please report this.")
+
+
+def _fitted_intervals(options: VisibilityOptions, needs, headroom: float) -> VisibilityOptions:
+    """`options` with the interval budgets left to the scene (None) set to what the
+    cameras need, times `headroom`, to a power of two (at most the scene's default)."""
+    fitted = {}
+    for name in ("max_intervals", "max_camera_intervals"):
+        if getattr(options, name) is None and name in needs:
+            needed, default = (int(np.max(a)) for a in needs[name])
+            if needed > 0:
+                fitted[name] = min(default, 1 << (math.ceil(headroom * needed) - 1).bit_length())
+    return dataclasses.replace(options, **fitted)
 
 
 @eqx.filter_jit
