@@ -175,28 +175,30 @@ def visible_points(
         same_piece = pieces[curve] == pieces[curve, query_cell][:, None]  # (q, N + 1)
         deflated_cells = deflated_cells & same_piece[:, None]
 
-    # Every curve's cells but those: arrays (q, m, N + 1).
+    # Every curve's cells but those: arrays (q, m, N + 1) (none for a single smooth curve).
+    blocked = jnp.zeros(t_mid.shape, bool)
     dd = d.map(lambda a: a[:, None, None])
-    sight_j = sight.map(lambda a: a[None])
-    dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None])))
-    plain = _crosses_segment(
-        cross(dd, sight_j), dg_j, h[None], linear_depth(dot(dd, sight_j), reach[:, None, None])
-    )
-    blocked = fused_reduce(jnp.any, plain & ~deflated_cells, (-1, -2))
-    on_other = jax.tree.map(lambda a: a[None], probes)  # (1, m, r)
-    blocked = blocked | fused_reduce(
-        jnp.any,
-        on_other.valid
-        & ~own_row[..., None]
-        & _grazing(
-            cross(dd, on_other.sight),
-            cross(dd, on_other.start),
-            cross(dd, on_other.end),
-            dot(dd, on_other.sight),
-            reach[:, None, None],
-        ),
-        (-1, -2),
-    )
+    if m > 1 or pieces is not None:
+        sight_j = sight.map(lambda a: a[None])
+        dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None])))
+        depth_j = linear_depth(dot(dd, sight_j), reach[:, None, None])
+        plain = _crosses_segment(cross(dd, sight_j), dg_j, h[None], depth_j)
+        blocked = fused_reduce(jnp.any, plain & ~deflated_cells, (-1, -2))
+    if m > 1:
+        on_other = jax.tree.map(lambda a: a[None], probes)  # (1, m, r)
+        blocked = blocked | fused_reduce(
+            jnp.any,
+            on_other.valid
+            & ~own_row[..., None]
+            & _grazing(
+                cross(dd, on_other.sight),
+                cross(dd, on_other.start),
+                cross(dd, on_other.end),
+                dot(dd, on_other.sight),
+                reach[:, None, None],
+            ),
+            (-1, -2),
+        )
 
     # The query's own curve: deflate the trivial root at t_mid and its periodic images
     # t_mid -+ 1 (the grid's ends are one point of the curve, and an image next to one
