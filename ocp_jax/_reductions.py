@@ -12,9 +12,10 @@ A short sort is two such reductions (`sorted_rows`).
 
 from collections.abc import Callable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 _LONGEST = 32  # XLA's CPU backend splits longer reductions
 # Each reduction's elementwise operation, and whether it is idempotent (op(a, a) = a), so
@@ -56,22 +57,28 @@ def fused_reduce(
 _COUNTED = 64  # the longest rows sorted by counting (n^2 comparisons each)
 
 
-def sorted_rows(x: Float[Array, "*batch n"]) -> Float[Array, "*batch n"]:
-    """`jnp.sort(x, axis=-1)` for x without NaN, stable. Rows of at most 64 entries are
-    sorted from two reductions: the rank of x_i counts the x_j before it (x_j < x_i, or
-    x_j = x_i with j < i), and the k-th sorted value is the x_i of rank k. XLA's CPU sort
-    is a kernel of its own that calls a comparator per comparison; for the few dozen
-    events of a curve seen by one camera the n^2 comparisons of the counts fuse into two
-    short kernels (longer rows, the union of several cameras' events, keep jnp.sort:
-    there the counts made value+grad slower). Differentiable as `jnp.sort` (the ranks
-    are constant)."""
+def sorted_rows(x: Float[Array, "*batch n"], labels: Int[Array, "*batch n"] | None = None):
+    """`jnp.sort(x, axis=-1)` for x without NaN, stable; with `labels` (integers of x's
+    shape), the pair (sorted x, the labels in the same order). Rows of at most 64
+    entries are sorted from two reductions: the rank of x_i counts the x_j before it
+    (x_j < x_i, or x_j = x_i with j < i), and the k-th sorted value is the x_i of rank k.
+    XLA's CPU sort is a kernel of its own that calls a comparator per comparison; for the
+    few dozen events of a curve seen by one camera the n^2 comparisons of the counts fuse
+    into two short kernels (longer rows, the union of several cameras' events, keep
+    `lax.sort`: there the counts made value+grad slower). Differentiable as `jnp.sort`
+    (the ranks are constant)."""
     n = x.shape[-1]
     if n > _COUNTED:
-        return jnp.sort(x, axis=-1)
+        if labels is None:
+            return jnp.sort(x, axis=-1)
+        return jax.lax.sort((x, labels), dimension=x.ndim - 1, is_stable=True, num_keys=1)
     index = jnp.arange(n).reshape((1,) * x.ndim + (n,))  # (..., 1, n): j or i
     row = jnp.arange(n).reshape((1,) * (x.ndim - 1) + (n, 1))  # (..., n, 1): i or k
     xi, xj = x[..., :, None], x[..., None, :]
     before = (xj < xi) | ((xj == xi) & (index < row))  # [..., i, j]: x_j before x_i
     rank = fused_reduce(jnp.sum, before)
     of_rank = rank[..., None, :] == row  # [..., k, i]: x_i has rank k
-    return fused_reduce(jnp.sum, jnp.where(of_rank, x[..., None, :], 0.0))
+    values = fused_reduce(jnp.sum, jnp.where(of_rank, x[..., None, :], 0.0))
+    if labels is None:
+        return values
+    return values, fused_reduce(jnp.sum, jnp.where(of_rank, labels[..., None, :], 0))

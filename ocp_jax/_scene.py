@@ -1,5 +1,6 @@
 """A scene: a set of closed curves (the objects), evaluated together."""
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -7,7 +8,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from ._curves import AbstractConic, AbstractCurve, UnitFrame, _is_concrete
 from ._validity import check_scene
@@ -104,6 +105,51 @@ class Scene(eqx.Module):
         inverse = np.argsort(np.asarray(order))
         return jax.tree.map(lambda *xs: jnp.concatenate(xs)[inverse], *outputs)
 
+    def _map_at(self, fn, curve, t, axis: int = 0):
+        """Apply `fn(curve_j, t_j)` at every element j of a flat list, on the curve
+        `curve[j]` (an index array (E,)) at its row t[j]; the results' element axis is
+        `axis` (as where fn is applied to all of t at once). Each group of curves of one
+        type and shape is evaluated at every element, with the element's curve's
+        parameters gathered, and the element keeps its own group's result: the cost is
+        that of the elements times the number of groups, not of the curves."""
+        groups = self._groups()
+        group_of, local = np.zeros(len(self.curves), int), np.zeros(len(self.curves), int)
+        for g, group in enumerate(groups):
+            group_of[group], local[group] = g, np.arange(len(group))
+        outputs = []
+        for group in groups:
+            if len(group) == 1:  # (all of t at once)
+                outputs.append(fn(self.curves[group[0]], t))
+            else:
+                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+                own = jax.tree.map(lambda a: a[jnp.asarray(local)[curve]], stacked)
+                outputs.append(jax.vmap(fn, out_axes=axis)(own, t))
+        if len(outputs) == 1:
+            return outputs[0]
+        group = jnp.asarray(group_of)[curve]
+
+        def select(*xs):
+            shape = [1] * xs[0].ndim
+            shape[axis] = group.shape[0]
+            mine = group.reshape(shape)
+            return functools.reduce(
+                lambda out, g: jnp.where(mine == g, xs[g], out), range(1, len(xs)), xs[0]
+            )
+
+        return jax.tree.map(select, *outputs)
+
+    def components_at(self, curve: Int[Array, " e"], t: Float[Array, "e *shape"]):
+        """x, x', x'' of curve `curve[j]` at t[j] for every element j of a flat list."""
+        return self._map_at(_components, curve, jnp.asarray(t, self.dtype))
+
+    def point_and_tangent_at(
+        self, curve: Int[Array, " e"], t: Float[Array, "e *shape"]
+    ) -> Float[Array, "4 e *shape"]:
+        """Rows (x, y, x', y') of curve `curve[j]` at t[j] for every element j of a flat
+        list (`AbstractCurve.point_and_tangent`)."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map_at(lambda c, t: c.point_and_tangent(t), curve, t, axis=1)
+
     def components(self, t: Float[Array, "m *shape"]) -> tuple[Vec, Vec, Vec]:
         """x_i(t[i]), x_i'(t[i]), x_i''(t[i]) for every curve i (row i of `t`), as `Vec`s."""
         t = jnp.asarray(t, self.dtype)
@@ -190,10 +236,13 @@ class Scene(eqx.Module):
         return align * -(-max(c.grid_cells() for c in self.curves) // align)
 
     def breakpoints(self) -> Float[Array, "m b"]:
-        """Each curve's breakpoints, padded with the seam 0 to a common length."""
+        """Each curve's breakpoints, padded with 1 (the end of [0, 1), as the engine pads
+        its events) to a common length."""
         points = [c.breakpoints() for c in self.curves]
         width = max(p.shape[0] for p in points)
-        return jnp.stack([jnp.pad(p, (0, width - p.shape[0])) for p in points])
+        return jnp.stack(
+            [jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points]
+        )
 
 
 # A curve evaluation is hundreds of operations (a degree-18 Bezier) and Q evaluates the

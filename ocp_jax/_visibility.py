@@ -107,10 +107,11 @@ class VisibilityOptions(eqx.Module):
       (circles, ellipses) the tangency and shadow times have closed forms: two tangency
       times per conic, and one shadow slot per ray and conic, packed into `max_shadows`
       only where there are more rays.
-    - `max_intervals`: per curve, the intervals between the events of all cameras that
-      are integrated (the budgets above are per camera and rarely all used at once); None
-      (default) takes the panels and corners plus half of the cameras' event budgets
-      (for a scene of conics, all of its closed-form event slots).
+    - `max_intervals`: the intervals between the events of all cameras that are
+      integrated, over the whole scene (the budgets above are per camera and rarely all
+      used at once); None (default) takes every curve's panels and real corners plus
+      half of the cameras' event budgets (for a scene of conics, all of its closed-form
+      event slots); `fit_options` sets it to what given cameras need.
     - `max_camera_intervals`: per camera, the intervals of its own partition (of
       positive length, over the whole scene) that are tested for visibility (the test of
       every query point against every curve is the costliest step of scenes with many
@@ -258,28 +259,33 @@ def _fixed_slots(scene: Scene, events, ranges: Roots | None) -> int:
     return scene.corners()[0].shape[1] if scene.has_corners else 0
 
 
+def _real_fixed(scene: Scene, fixed: int) -> int:
+    """Of one camera's `fixed` event slots on every curve (`_fixed_slots`), those that
+    hold an event on some curve, over the whole scene: for a scene of conics all of
+    them, else the real corners (the curves' corner lists are padded to the longest)."""
+    if scene.conics_only:
+        return len(scene) * fixed
+    return int(scene.corners()[1].sum()) if scene.has_corners else 0
+
+
+def _flat_budget(scene: Scene, option: int | None, slots: int, fixed: int, kept: int) -> int:
+    """A static budget of the intervals of every curve's row of `slots` sorted events
+    (padded with t = 1), over the whole scene: `option`, or by default the `kept` ones
+    (every curve's real fixed events: breakpoints, corners, closed-form events) plus
+    half of every curve's other slots, the cameras' root budgets, which are rarely all
+    used at once."""
+    m = len(scene)
+    if option is not None:
+        return min(option, m * slots)
+    return min(m * slots, kept + m * ((slots - fixed + 1) // 2))
+
+
 def _camera_interval_budget(scene: Scene, options, slots: int, fixed: int) -> int:
     """The static number of one camera's intervals (of positive length, over the whole
-    scene) that are tested for visibility: `options.max_camera_intervals`, or by default
-    every curve's fixed events (its real corners; for a scene of conics, its closed-form
-    events) and its first interval, plus half of every curve's root slots (the cameras'
-    root budgets are rarely all used at once)."""
-    m = len(scene)
-    if options.max_camera_intervals is not None:
-        return min(options.max_camera_intervals, m * slots)
-    if scene.conics_only:
-        kept = m * fixed
-    else:
-        kept = int(scene.corners()[1].sum()) if scene.has_corners else 0
-    return min(m * slots, kept + m * (1 + (slots - fixed) // 2))
-
-
-def _interval_budget(option: int | None, fixed: int, slots: int) -> int:
-    """A static budget of the intervals between `slots` sorted events (padded with t = 1)
-    that are kept: `option`, or by default the `fixed` ones (breakpoints, corners,
-    closed-form events) plus half of the others, the cameras' root budgets, which are
-    rarely all used at once."""
-    return min(option, slots) if option is not None else fixed + (slots - fixed + 1) // 2
+    scene) that are tested for visibility (`_flat_budget`, with every curve's first
+    interval kept)."""
+    kept = _real_fixed(scene, fixed) + len(scene)
+    return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept)
 
 
 def _camera_partition(
@@ -355,18 +361,20 @@ def _camera_partition(
 
 def _integrand(t, args, one_thread: bool):
     """max over the camera groups that see the interval of q(x(t), x'(t), G) ||x'(t)||,
-    for t of shape (m, e, g) (the groups' visibility `seen` has shape (G, m, e))."""
-    scene, *rest = args
+    for t of shape (e, g) on the curves `curve` (e,) (the groups' visibility `seen` has
+    shape (G, e))."""
+    scene, curve, *rest = args
     if one_thread:
         # x, x' and q in one kernel: the four coordinates share the curve's powers of t
         # there, where stored as one stack (a concatenation, a branch per element) each
-        # would compute them again, unvectorized (the banana's integrand took a sixth of
-        # the time in the profiler).
-        integrand = lambda scene, t, rest: _integrand_at(*scene.components(t)[:2], *rest)
-        return computed_on_one_thread(integrand, (scene, t, rest), scene)
-    # With several cameras x and x' are stored (the integrand computed whole and stored
-    # instead made value+grad with 4 cameras 1.03-1.56x slower, benchmarks/HISTORY.md).
-    return _integrand_at(*_stored_points(scene, t), *rest)
+        # would compute them again, unvectorized.
+        def integrand(scene, curve, t, rest):
+            return _integrand_at(*scene.components_at(curve, t)[:2], *rest)
+
+        return computed_on_one_thread(integrand, (scene, curve, t, rest), scene)
+    # With several cameras x and x' are stored (computed once, not in every group's q).
+    rows = materialize(scene.point_and_tangent_at(curve, t), scene)
+    return _integrand_at(Vec(rows[0], rows[1]), Vec(rows[2], rows[3]), *rest)
 
 
 def _stored_points(scene: Scene, t) -> tuple[Vec, Vec]:
@@ -519,42 +527,46 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     if crossovers is not None:
         pieces.extend(crossovers.t)
     # (the cameras' events last: in a tie, the stable sort puts them after the other
-    # pieces, as the viewability lookup below needs)
-    pieces.extend(partitions.events)
-    union = sorted_rows(jnp.concatenate(pieces, 1))
-    # Padded events sit at t = 1 (the end of the sort): keep a static budget of the rest.
-    # Every camera repeats the corners among its events (zero-length intervals); the
-    # closed-form events of conics and the nearest points are kept whole (`_fixed_slots`).
-    per_camera = _fixed_slots(scene, partitions.events, partitions.ranges) + cut
-    fixed = pieces[0].shape[1] + len(partitions.events) * per_camera
-    budget = _interval_budget(options.max_intervals, fixed, union.shape[1])
-    used = fused_reduce(jnp.sum, union < 1.0)
-    start, end = _intervals(union[:, :budget])
+    # pieces, as the viewability lookup below needs; each labelled with its camera)
+    camera_events = partitions.events  # (k, m, L)
+    k, m, per_row = camera_events.shape
+    others = jnp.concatenate(pieces, 1)
+    rows = jnp.concatenate([others, jnp.moveaxis(camera_events, 0, 1).reshape(m, -1)], 1)
+    labels = np.concatenate([np.full(others.shape[1], -1), np.repeat(np.arange(k), per_row)])
+    union, source = sorted_rows(rows, jnp.broadcast_to(jnp.asarray(labels), rows.shape))
+    # Padded events sit at t = 1 (the end of each row): the intervals that start before
+    # it, over the whole scene, are integrated as one flat list (at most `budget` of
+    # them). Every camera repeats the corners among its events (zero-length intervals);
+    # the closed-form events of conics and the nearest points are kept whole.
+    per_camera = _fixed_slots(scene, camera_events, partitions.ranges) + cut
+    fixed = pieces[0].shape[1] + k * per_camera
+    slots = union.shape[1]
+    kept = m * pieces[0].shape[1] + k * (_real_fixed(scene, per_camera - cut) + m * cut)
+    budget = _flat_budget(scene, options.max_intervals, slots, fixed, kept)
+    starts, ends = _intervals(union)
+    used_mask = jax.lax.stop_gradient(starts) < 1.0
+    index, filled, used = first_true(used_mask.ravel(), budget)
+    curve = index // slots
+    start = jnp.where(filled, starts.ravel()[index], 1.0)
+    end = jnp.where(filled, ends.ravel()[index], 1.0)
 
-    # Viewability matrix: camera interval l [e_l, e_l+1] holds union interval j when
-    # e_l < end_j <= e_l+1 (with e_0 = -inf, e_L = inf): found by the interval's end (the
-    # same floats as the camera's events). Where an event ties with another piece (a panel
+    # Viewability matrix: union interval j lies in the interval of camera c that starts
+    # at the last of c's events at or before it in the sorted row (its first interval
+    # before its first event). Where an event ties with another piece (a panel
     # breakpoint, say), the zero-length interval between them comes before the event and
     # is looked up on the event's near side: its end carries the event's derivative,
-    # which belongs to the interval after it (Leibniz). (Ties between two cameras'
-    # events are left to the sort's order.) A comparison per pair (j, l), not a gather
-    # of `visible` by index: XLA would fuse the visibility tests into the gather and
-    # repeat each for every union interval it holds (10 blobs, 4 cameras: a third of the
-    # time of value+grad).
-    camera_events = partitions.events  # (k, m, L), sorted
-    opens = camera_events.at[..., 0].set(-jnp.inf)  # e_l
-    closes = jnp.concatenate(  # e_l+1
-        [camera_events[..., 1:], jnp.full_like(camera_events[..., :1], jnp.inf)], -1
-    )
-    t = jax.lax.stop_gradient(end)[None, :, :, None]  # (1, m, e, 1)
-    holds = (opens[..., None, :] < t) & (t <= closes[..., None, :])  # (k, m, e, L)
-    seen = fused_reduce(jnp.any, holds & partitions.visible[..., None, :])
-    seen = seen & scene.observed()[None, :, None]
-    seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, m, e)
+    # which belongs to the interval after it (Leibniz). (Ties between two cameras' events
+    # are left to the sort's order.)
+    counts = jnp.cumsum(source[None] == jnp.arange(k)[:, None, None], -1)  # (k, m, U)
+    seen = jnp.take_along_axis(partitions.visible, jnp.maximum(counts - 1, 0), -1)
+    seen = seen.reshape(k, -1)[:, index]
+    seen = seen & jnp.asarray(scene.observed())[curve][None] & filled[None]
+    seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, e)
 
-    args = (scene, group_members(events.cameras, events.groups), objective, seen_by_group)
+    members = group_members(events.cameras, events.groups)
+    args = (scene, curve, members, objective, seen_by_group)
     integrand = functools.partial(_integrand, one_thread=_one_thread(events.cameras, 1))
-    integrals = gauss_legendre(integrand, start, end, args, options.quadrature)  # (m, e)
+    integrals = gauss_legendre(integrand, start, end, args, options.quadrature)  # (e,)
     value = fused_reduce(jnp.sum, integrals, None)
     return value, (used, budget)
 
@@ -655,7 +667,7 @@ def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
     if intervals is not None:
         used, budget = intervals
         budgets.append(
-            Budget("max_intervals", jnp.max(used), budget, "event intervals on one curve")
+            Budget("max_intervals", jnp.max(used), budget, "event intervals in the scene")
         )
     return budgets
 

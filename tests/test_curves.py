@@ -272,13 +272,13 @@ def test_scene_evaluates_every_curve():
     for i, c in enumerate(curves):
         for got, want in zip((x, dx, ddx), c.derivatives(jnp.asarray(t[i]))):
             np.testing.assert_allclose(got[i], np.asarray(want), rtol=1e-14, atol=1e-14)
-    # every curve's own breakpoints, padded with the seam to a common length
+    # every curve's own breakpoints, padded with 1 (the end of [0, 1)) to a common length
     b = np.asarray(scene.breakpoints())
     assert b.shape == (5, max(c.panels() for c in curves))
     for row, c in zip(b, curves):
         own = np.asarray(c.breakpoints())
         np.testing.assert_array_equal(row[: own.size], own)
-        assert np.all(row[own.size :] == 0.0)
+        assert np.all(row[own.size :] == 1.0)
 
 
 # ---------------------------------------------------------------------------

@@ -1766,7 +1766,7 @@ def test_exceeded_tangency_budget_raises():
 
 def test_exceeded_interval_budget_raises():
     fn = jax.jit(lambda s, c: ocp.visibility(s, c, FS, ocp.VisibilityOptions(max_intervals=4)))
-    with pytest.raises(Exception, match=r"more event intervals on one curve than the budget of 4.*max_intervals="):
+    with pytest.raises(Exception, match=r"more event intervals in the scene than the budget of 4.*max_intervals="):
         fn(H.BANANA, jnp.asarray([H.BANANA_CAMERAS[0]]))
 
 
