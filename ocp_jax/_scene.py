@@ -85,6 +85,10 @@ class Scene(eqx.Module):
             groups.setdefault(_structure(c), []).append(i)
         return list(groups.values())
 
+    def _stacked(self, group: list[int]) -> AbstractCurve:
+        """The curves of one group (`_groups`), stacked along a leading axis."""
+        return jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+
     def _map(self, fn, *args):
         """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
         results are stacked along a leading curve axis. A curve alone in its group is
@@ -96,7 +100,7 @@ class Scene(eqx.Module):
                 out = fn(self.curves[i], *(a[i] for a in args))
                 outputs.append(jax.tree.map(lambda a: a[None], out))
             else:
-                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+                stacked = self._stacked(group)
                 rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
                 outputs.append(jax.vmap(fn)(stacked, *rows))
             order.extend(group)
@@ -121,7 +125,7 @@ class Scene(eqx.Module):
             if len(group) == 1:  # (all of t at once)
                 outputs.append(fn(self.curves[group[0]], t))
             else:
-                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+                stacked = self._stacked(group)
                 own = jax.tree.map(lambda a: a[jnp.asarray(local)[curve]], stacked)
                 outputs.append(jax.vmap(fn, out_axes=axis)(own, t))
         if len(outputs) == 1:
@@ -240,9 +244,7 @@ class Scene(eqx.Module):
         its events) to a common length."""
         points = [c.breakpoints() for c in self.curves]
         width = max(p.shape[0] for p in points)
-        return jnp.stack(
-            [jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points]
-        )
+        return jnp.stack([jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points])
 
 
 # A curve evaluation is hundreds of operations (a degree-18 Bezier) and Q evaluates the
