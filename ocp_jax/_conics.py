@@ -87,10 +87,10 @@ def conic_tangency_times(frames: UnitFrame, camera: Vec) -> Roots:
 
 
 def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budget: int) -> Roots:
-    """Where the rays from `camera` through the ray sources meet every conic first, if
-    beyond the source's depth: one slot per ray and conic, packed into `budget` slots per
-    conic when there are more (the count of hits is returned, so that an overflow is
-    reported).
+    """Where the rays from `camera` through the ray sources first meet the scene beyond
+    the source's depth (`shadow_times`: each ray has one shadow at most): one slot per
+    ray and conic, packed into `budget` slots per conic when there are more (the count
+    of hits is returned, so that an overflow is reported).
 
     `sources` starts with the two tangency points of every conic in turn (as
     `tangency_points` gives them for `conic_tangency_times`), whose rays are not searched
@@ -114,6 +114,10 @@ def conic_shadow_times(frames: UnitFrame, camera: Vec, sources: RaySources, budg
     # positive one inside it (c < 0, a room).
     lam = jnp.where(c > 0.0, jnp.minimum(*roots), jnp.maximum(*roots))
     valid = real & (lam > sources.depth[other]) & sources.valid[other]
+    # Each ray's first hit over the scene (lam is the depth along the ray on every conic;
+    # near ties kept): behind it, the conic it meets hides both sides of the ray.
+    nearest = jnp.full(lines, jnp.inf, lam.dtype).at[other].min(jnp.where(valid, lam, jnp.inf))
+    valid = valid & (lam <= nearest[other] + 1e-9 * jnp.abs(nearest[other]))
     hit = Vec(*(o + lam * d for o, d in zip(origin, direction)))
     t = jnp.where(valid, jnp.mod(_angle(hit, valid) / _TWO_PI, 1.0), 1.0)
     count = jnp.sum(valid, axis=-1)

@@ -27,7 +27,7 @@ from jaxtyping import Array, Bool, Float, Int
 from ._jvp import is_zero, perturbed_jvp
 from ._materialize import materialize
 from ._reductions import fused_reduce
-from ._roots import first_true, grid_brackets, solve_roots
+from ._roots import cell_ends, first_true, grid_brackets, solve_roots
 from ._vec import Vec, add, cross, dot, norm, sub
 
 
@@ -243,26 +243,26 @@ def silhouette_corners(scene, camera: Vec, samples: Samples) -> RaySources:
     """The corners where the line of sight leaves an object: cross(x', x - C) has
     different signs (or a zero) on the two sides of the corner, so the camera sees one
     of its edges from the front and the other from behind."""
-    times, real = scene.corners()
-    m, c = times.shape
+    padded, real = scene.corners()
+    # Only the real corners (the curves' lists are padded to the longest).
+    rows, columns = np.nonzero(real)
+    times = padded[rows, columns]
     cells = samples.t.shape[0] - 1
     node = np.round(times * cells).astype(int)  # right limits at node, left at node or N
     node_end = np.where(node == 0, cells, node)
-    rows = np.arange(m)[:, None]
     sight = sub(samples.x, jax.lax.stop_gradient(camera)).map(lambda a: a[rows, node])
     right = cross(samples.dx.map(lambda a: a[rows, node]), sight)
     left = cross(samples.dx_end.map(lambda a: a[rows, node_end]), sight)
-    point, _, _ = scene.components(jnp.asarray(times, scene.dtype))
-    flat = lambda v: v.map(jnp.ravel)  # noqa: E731
-    zero = jnp.zeros(m * c, scene.dtype)
+    point = scene.components(jnp.asarray(padded, scene.dtype))[0].map(lambda a: a[rows, columns])
+    zero = jnp.zeros(times.shape, scene.dtype)
     return RaySources(
-        flat(point),
+        point,
         Vec(zero, zero),
-        jnp.asarray(times.ravel(), scene.dtype),
-        jnp.asarray(np.repeat(np.arange(m), c)),
-        (jnp.asarray(real) & (right * left <= 0)).ravel(),
+        jnp.asarray(times, scene.dtype),
+        jnp.asarray(rows),
+        right * left <= 0,
         jnp.ones_like(zero),
-        jnp.zeros(m * c, bool),
+        jnp.zeros(times.shape, bool),
     )
 
 
@@ -365,13 +365,21 @@ def shadow_times(
     budget: int,
     iterations: int,
 ) -> Roots:
-    """Shadow times on every curve of the rays from `camera` through the ray sources,
-    keeping hits beyond each source's `depth` (beyond a tangency point, in front of the
-    camera for a wedge edge).
+    """Shadow times on every curve of the rays from `camera` through the ray sources: the
+    first transversal crossing of each ray beyond its source's `depth` (beyond a tangency
+    point or corner, in front of the camera for a wedge edge). A ray changes visibility
+    only there: the curve it first crosses covers both sides of the ray behind that
+    point, so later crossings are seen on neither side. Each ray has at most one shadow
+    time, the roots found behind another curve's being dropped.
 
-    Only rays that pass through a curve's bounding disc beyond their tangency point are
-    searched on that curve (at most `budget` of them per curve; the count is returned
-    with the roots' so that an overflow is reported).
+    On an object, only rays that pass through its bounding disc beyond their source are
+    searched (at most `budget` of them per object; the count is returned with the roots'
+    so that an overflow is reported). The room is met by every ray: its row is searched
+    for all of them and has a slot per ray besides the `budget` (its count is that of
+    the roots beyond one per ray). Cells of the room that cannot hold a ray's first
+    crossing of it, whose depth range lies beyond that of a cell with a sign change
+    (depths of the cell's nodes widened by the cell's chord, along which the arc runs),
+    are not searched.
 
     On the tangency point's own curve j the ray function g(s) = cross(P - C, x_j(s) - C)
     has a double root at s = T (the ray touches the curve there). It is deflated,
@@ -391,113 +399,183 @@ def shadow_times(
     ray, bend = materialize(
         jax.lax.stop_gradient((sub(tangency.point, camera), tangency.curvature)), scene
     )
-    ray_l = ray.map(lambda a: a[None])  # (1, l)
-    length = norm(ray_l)
-    centre, radius = bounding_discs(samples)
-    to_centre = sub(centre, c0).map(lambda a: a[:, None])  # (m, 1)
-    reach = radius[:, None] * length  # (m, l)
-    passes = (
-        (jnp.abs(cross(ray_l, to_centre)) <= reach)
-        & (dot(ray_l, to_centre) + reach > tangency.depth[None] * length**2)
-        & tangency.valid[None]
-    )
-    m, sources = passes.shape
-    rays = min(budget, sources)
-    if rays == sources:  # room for every ray on every curve: searched as they are
-        pick, chosen, ray_count = None, passes, passes.sum(1)
-
-        def take(a):  # (l,) -> (m, rays, 1)
-            return jnp.broadcast_to(a[None, :, None], (m, rays, 1))
-
-    else:  # the rays that pass each curve, packed into the budget
-        pick, chosen, ray_count = first_true(passes, rays)
-
-        def take(a):
-            return a[pick][..., None]
-
-    ray_grid = ray.map(take)  # (m, rays, 1)
-    sight = sub(samples.x, c0).map(lambda a: a[:, None])  # (m, 1, N + 1)
-    values = cross(ray_grid, sight)
-
-    def offset(t):  # t - T wrapped to [-1/2, 1/2) (divisor 1 where it is 0) and whether 0
-        u = t - take(tangency.t)
-        u = u - jnp.round(u)
-        near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
-        return jnp.where(near, 1.0, u), near
-
-    u, near = offset(samples.t[None, None])
-    own = take(tangency.curve) == jnp.arange(m)[:, None, None]
-    tangent = own & take(tangency.tangent)
-    corner = own & ~take(tangency.tangent) if scene.has_corners else None
-    deflated = tangent if corner is None else tangent | corner
-    curvature = cross(ray_grid, bend.map(take))
-    r = jnp.where(near, 0.5 * curvature, values / u**2)
-    # Rays along a straight edge make F vanish on it up to rounding (deflated values
-    # on a tangency point's own curve are exempt; a corner's are scaled alike).
-    size = norm(ray_grid) * norm(sight)
-
-    def deflated_at_nodes(dx, side):
-        """F, F' and the scale of F's terms at the nodes, for the cells on one side of
-        each (+1: after it, -1: before it; they differ at corners)."""
-        dx = dx.map(lambda a: a[:, None])  # (m, 1, N + 1)
-        slope = cross(ray_grid, dx)
-        value = jnp.where(tangent, r, values)
-        dvalue = jnp.where(tangent, (slope - 2.0 * r * u) / u**2, slope)
-        scale = jnp.where(tangent, 0.0, size)
-        if corner is not None:
-            distance = jnp.abs(u)
-            over = values / distance
-            value = jnp.where(corner, jnp.where(near, side * slope, over), value)
-            dvalue = jnp.where(corner, (slope - over * jnp.sign(u)) / distance, dvalue)
-            scale = jnp.where(
-                corner, jnp.where(near, norm(ray_grid) * norm(dx), size / distance), scale
-            )
-        return value, jnp.where(deflated & near, 0.0, dvalue), scale
-
-    if samples.dx_end is None:
-        values, slopes, scale = deflated_at_nodes(samples.dx, 1.0)
-    else:  # (right limits, left limits), as `grid_brackets` takes them
-        values, slopes, scale = zip(
-            deflated_at_nodes(samples.dx, 1.0), deflated_at_nodes(samples.dx_end, -1.0)
-        )
-
-    # The first probe of each cell of every curve, g of every ray there (deflated as
-    # above on the ray's own curve, where its own tangency point is no probe).
+    m, sources = len(scene), ray.x.shape[0]
     cells = samples.t.shape[0] - 1
+    # The first probe of each cell of every curve (where the ray function is known
+    # exactly; `grazing_probes`).
     in_cell = probes.valid[:, None] & (probes.cell[:, None] == jnp.arange(cells)[None, :, None])
     first = jnp.argmax(in_cell, -1)  # (m, cells)
-    probe_t = jnp.take_along_axis(probes.t, first, -1)[:, None]  # (m, 1, cells)
-    probe_sight = probes.sight.map(lambda a: jnp.take_along_axis(a, first, -1)[:, None])
-    probe_u, probe_near = offset(probe_t)
-    probe_values = cross(ray_grid, probe_sight)
-    probe_values = jnp.where(tangent, probe_values / probe_u**2, probe_values)
-    if corner is not None:
-        probe_values = jnp.where(corner, probe_values / jnp.abs(probe_u), probe_values)
-    present = jnp.any(in_cell, -1)[:, None] & ~(deflated & probe_near)
-    fraction = probe_t * cells - jnp.arange(cells)[None, None]
-    # Computed once, not in every element of the brackets' masks that read them.
-    probe = materialize(
-        jnp.broadcast_arrays(fraction, jnp.where(present, probe_values, jnp.nan)), scene
-    )
+    probe_t = jnp.take_along_axis(probes.t, first, -1)
+    probe_sight = probes.sight.map(lambda a: jnp.take_along_axis(a, first, -1))
+    probe_in = jnp.any(in_cell, -1)
 
-    depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
-    start = take(tangency.depth)
-    beyond = (depth[..., :-1] > start) | (depth[..., 1:] > start)
-    brackets = grid_brackets(
-        samples.t, values, slopes, budget, beyond & chosen[..., None], scale, probe
-    )
-    line = brackets.source // (2 * cells)  # (m, r)
-    if pick is not None:
-        line = jnp.take_along_axis(pick, line, 1)
-    by_corner = None
-    if corner is not None:  # which slots hold a corner's ray on its own curve, and T
-        own_corner = (tangency.curve[line] == jnp.arange(m)[:, None]) & ~tangency.tangent[line]
-        by_corner = (own_corner, jax.lax.stop_gradient(tangency.t[line]))
-    args = (scene, camera, Vec.of(tangency.point.stack()[line]), by_corner)  # one gather
-    s, valid, settled = solve_roots(
-        shadow_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
-    )
-    return Roots(s, valid, jnp.maximum(brackets.count, ray_count), settled)
+    def search(rows: np.ndarray, rays: int | None, slots: int, first_crossing: bool):
+        """Brackets of the rays' crossings on the curves `rows` (static indices), at
+        most `slots` per curve: `rays` of those that pass each curve's bounding disc
+        (None: every ray), and with `first_crossing` only the cells that can hold each
+        ray's first crossing of the curve. Returns the brackets, the ray of each slot
+        and the count per curve."""
+        n = len(rows)
+        ray_l = ray.map(lambda a: a[None])  # (1, l)
+        length = norm(ray_l)
+        if rays is None:
+            passes = jnp.broadcast_to(tangency.valid[None], (n, sources))
+        else:
+            centre, radius = bounding_discs(samples)
+            to_centre = sub(centre, c0).map(lambda a: a[rows, None])  # (n, 1)
+            reach = radius[rows, None] * length  # (n, l)
+            passes = (
+                (jnp.abs(cross(ray_l, to_centre)) <= reach)
+                & (dot(ray_l, to_centre) + reach > tangency.depth[None] * length**2)
+                & tangency.valid[None]
+            )
+        if rays is None or rays >= sources:  # every ray searched on every curve
+            pick, chosen, ray_count = None, passes, passes.sum(1)
+            width = sources
+
+            def take(a):  # (l,) -> (n, rays, 1)
+                return jnp.broadcast_to(a[None, :, None], (n, width, 1))
+
+        else:  # the rays that pass each curve, packed into the budget
+            pick, chosen, ray_count = first_true(passes, rays)
+
+            def take(a):
+                return a[pick][..., None]
+
+        ray_grid = ray.map(take)  # (n, rays, 1)
+        sight = sub(samples.x, c0).map(lambda a: a[rows, None])  # (n, 1, N + 1)
+        values = cross(ray_grid, sight)
+
+        def offset(t):  # t - T wrapped to [-1/2, 1/2) (divisor 1 where 0) and whether 0
+            u = t - take(tangency.t)
+            u = u - jnp.round(u)
+            near = jnp.abs(u) <= 1e4 * jnp.finfo(u.dtype).eps
+            return jnp.where(near, 1.0, u), near
+
+        u, near = offset(samples.t[None, None])
+        own = take(tangency.curve) == jnp.asarray(rows)[:, None, None]
+        tangent = own & take(tangency.tangent)
+        corner = own & ~take(tangency.tangent) if scene.has_corners else None
+        deflated = tangent if corner is None else tangent | corner
+        curvature = cross(ray_grid, bend.map(take))
+        r = jnp.where(near, 0.5 * curvature, values / u**2)
+        # Rays along a straight edge make F vanish on it up to rounding (deflated values
+        # on a tangency point's own curve are exempt; a corner's are scaled alike).
+        size = norm(ray_grid) * norm(sight)
+
+        def deflated_at_nodes(dx, side):
+            """F, F' and the scale of F's terms at the nodes, for the cells on one side
+            of each (+1: after it, -1: before it; they differ at corners)."""
+            dx = dx.map(lambda a: a[rows, None])  # (n, 1, N + 1)
+            slope = cross(ray_grid, dx)
+            value = jnp.where(tangent, r, values)
+            dvalue = jnp.where(tangent, (slope - 2.0 * r * u) / u**2, slope)
+            scale = jnp.where(tangent, 0.0, size)
+            if corner is not None:
+                distance = jnp.abs(u)
+                over = values / distance
+                value = jnp.where(corner, jnp.where(near, side * slope, over), value)
+                dvalue = jnp.where(corner, (slope - over * jnp.sign(u)) / distance, dvalue)
+                scale = jnp.where(
+                    corner, jnp.where(near, norm(ray_grid) * norm(dx), size / distance), scale
+                )
+            return value, jnp.where(deflated & near, 0.0, dvalue), scale
+
+        if samples.dx_end is None:
+            values, slopes, scale = deflated_at_nodes(samples.dx, 1.0)
+        else:  # (right limits, left limits), as `grid_brackets` takes them
+            values, slopes, scale = zip(
+                deflated_at_nodes(samples.dx, 1.0), deflated_at_nodes(samples.dx_end, -1.0)
+            )
+
+        # g of every ray at the first probe of each cell (deflated as above on the ray's
+        # own curve, where its own tangency point is no probe).
+        probe_u, probe_near = offset(probe_t[rows, None])
+        probe_values = cross(ray_grid, probe_sight.map(lambda a: a[rows, None]))
+        probe_values = jnp.where(tangent, probe_values / probe_u**2, probe_values)
+        if corner is not None:
+            probe_values = jnp.where(corner, probe_values / jnp.abs(probe_u), probe_values)
+        present = probe_in[rows, None] & ~(deflated & probe_near)
+        fraction = probe_t[rows, None] * cells - jnp.arange(cells)[None, None]
+        # Computed once, not in every element of the brackets' masks that read them.
+        probe = materialize(
+            jnp.broadcast_arrays(fraction, jnp.where(present, probe_values, jnp.nan)), scene
+        )
+
+        depth = dot(ray_grid, sight) / dot(ray_grid, ray_grid)
+        start = take(tangency.depth)
+        keep = ((depth[..., :-1] > start) | (depth[..., 1:] > start)) & chosen[..., None]
+        if first_crossing:
+            chord = norm(samples.x.map(lambda a: jnp.diff(a[rows, None], axis=-1)))
+            spread = chord / norm(ray_grid)  # (n, rays, N)
+            near_end = jnp.minimum(depth[..., :-1], depth[..., 1:]) - spread
+            far_end = jnp.maximum(depth[..., :-1], depth[..., 1:]) + spread
+            (f0, f1), (s0, s1) = cell_ends(values), cell_ends(scale)
+            noise = 1e3 * jnp.finfo(f0.dtype).eps
+            crossed = (
+                (f0 * f1 < 0)
+                & ((jnp.abs(f0) > noise * s0) | (jnp.abs(f1) > noise * s1))
+                & (near_end > start)
+            )
+            reach = jnp.min(jnp.where(crossed, far_end, jnp.inf), -1, keepdims=True)
+            keep = keep & (near_end <= reach)
+        brackets = grid_brackets(samples.t, values, slopes, slots, keep, scale, probe)
+        line = brackets.source // (2 * cells)  # (n, slots)
+        if pick is not None:
+            line = jnp.take_along_axis(pick, line, 1)
+        count = brackets.count if rays is None else jnp.maximum(brackets.count, ray_count)
+        return brackets, line, count
+
+    def solve(curves, brackets, line, rows: np.ndarray):
+        """The roots in the brackets of the rays `line` on the curves `rows` (static),
+        evaluated by `curves` (the scene, or the room alone), whether each lies beyond
+        its source, its depth, and whether the search is done."""
+        by_corner = None
+        if scene.has_corners:  # which slots hold a corner's ray on its own curve, and T
+            own = tangency.curve[line] == jnp.asarray(rows)[:, None]
+            by_corner = (own & ~tangency.tangent[line], jax.lax.stop_gradient(tangency.t[line]))
+        args = (curves, camera, Vec.of(tangency.point.stack()[line]), by_corner)  # one gather
+        s, valid, settled = solve_roots(
+            shadow_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
+        )
+        x, _, _ = jax.lax.stop_gradient(curves).components(jax.lax.stop_gradient(s))
+        hit_ray = ray.map(lambda a: a[line])
+        depth = dot(hit_ray, sub(x, c0)) / dot(hit_ray, hit_ray)
+        return s, valid & (depth > tangency.depth[line]), depth, settled
+
+    if scene.room:  # the objects, then the room (the last curve) for every ray
+        brackets, line, count = search(np.arange(m - 1), budget, budget, False)
+        # (the scene evaluates a row per curve: the room's is left empty)
+        brackets, line = jax.tree.map(
+            lambda a: jnp.pad(a, [(0, 1)] + [(0, 0)] * (a.ndim - 1)),
+            (brackets._replace(count=None), line),
+        )
+        room_brackets, room_line, room_count = search(
+            np.array([m - 1]), None, sources + budget, True
+        )
+        lines = [line[:-1], room_line]
+        solved = [
+            solve(scene, brackets, line, np.arange(m)),
+            solve(scene.curves[-1], room_brackets, room_line, np.array([m - 1])),
+        ]
+        solved[0] = jax.tree.map(lambda a: a[:-1] if a.ndim else a, solved[0])
+        count = jnp.concatenate([count, jnp.maximum(room_count - sources, 0)])
+    else:
+        brackets, line, count = search(np.arange(m), budget, budget, False)
+        lines, solved = [line], [solve(scene, brackets, line, np.arange(m))]
+    # Each ray's first hit beyond its source, over the scene (near ties kept).
+    nearest = jnp.full(sources, jnp.inf, ray.x.dtype)
+    for line, (_, beyond, depth, _) in zip(lines, solved):
+        nearest = nearest.at[line].min(jnp.where(beyond, depth, jnp.inf))
+    width = max(line.shape[-1] for line in lines)
+    t, first_hit = [], []
+    for line, (s, beyond, depth, _) in zip(lines, solved):
+        hit = beyond & (depth <= nearest[line] + 1e-9 * jnp.abs(nearest[line]))
+        pad = [(0, 0), (0, width - line.shape[-1])]
+        t.append(jnp.pad(jnp.where(hit, s, 1.0), pad, constant_values=1.0))
+        first_hit.append(jnp.pad(hit, pad))
+    settled = jnp.all(jnp.stack([done for *_, done in solved]))
+    return Roots(jnp.concatenate(t), jnp.concatenate(first_hit), count, settled)
 
 
 def range_function(t, args):

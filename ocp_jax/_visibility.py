@@ -96,7 +96,11 @@ class VisibilityOptions(eqx.Module):
     - `max_tangents`, `max_shadows` (shadows of tangency points and the crossings of a
       view wedge's edges), `max_range_crossings` (of a camera's range circle): root
       budgets per curve and camera; `max_crossovers`: per curve and pair of camera
-      groups (of cameras, or of camera pairs for `Reconstruction`).
+      groups (of cameras, or of camera pairs for `Reconstruction`). A ray from a
+      tangency point, a corner or a wedge edge casts one shadow at most, where it first
+      crosses a curve beyond its source (behind that, the curve it crossed hides both
+      sides of the ray): `max_shadows` bounds the rays that pass one object's bounding
+      disc, and a room, which every ray meets, has a slot for every ray besides it.
       Called outside any jit, `visibility`, `visible_intervals`, `optimize`, `greedy`,
       `exhaustive`, `slsqp` and the plots grow an overflowed budget and compile again,
       with a warning; inside a jit an overflow raises an error naming the option
@@ -268,24 +272,35 @@ def _real_fixed(scene: Scene, fixed: int) -> int:
     return int(scene.corners()[1].sum()) if scene.has_corners else 0
 
 
-def _flat_budget(scene: Scene, option: int | None, slots: int, fixed: int, kept: int) -> int:
+def _unused_slots(scene: Scene, shadows: Roots, options) -> int:
+    """Of one camera's event slots over the scene, those that never hold an event: in a
+    room, every object's share of the room's slot per ray (`shadow_times`)."""
+    if not scene.room or scene.conics_only:
+        return 0
+    return (len(scene) - 1) * (shadows.t.shape[-1] - options.max_shadows)
+
+
+def _flat_budget(
+    scene: Scene, option: int | None, slots: int, fixed: int, kept: int, unused: int
+) -> int:
     """A static budget of the intervals of every curve's row of `slots` sorted events
-    (padded with t = 1), over the whole scene: `option`, or by default the `kept` ones
-    (every curve's real fixed events: breakpoints, corners, closed-form events) plus
-    half of every curve's other slots, the cameras' root budgets, which are rarely all
-    used at once."""
+    (padded with t = 1), over the whole scene, of which `unused` never hold one:
+    `option`, or by default the `kept` ones (every curve's real fixed events:
+    breakpoints, corners, closed-form events) plus half of the other slots, the cameras'
+    root budgets, which are rarely all used at once."""
     m = len(scene)
+    capacity = m * slots - unused
     if option is not None:
-        return min(option, m * slots)
-    return min(m * slots, kept + m * ((slots - fixed + 1) // 2))
+        return min(option, capacity)
+    return min(capacity, kept + m * ((slots - fixed + 1) // 2) - (unused + 1) // 2)
 
 
-def _camera_interval_budget(scene: Scene, options, slots: int, fixed: int) -> int:
+def _camera_interval_budget(scene: Scene, options, slots: int, fixed: int, unused: int) -> int:
     """The static number of one camera's intervals (of positive length, over the whole
     scene) that are tested for visibility (`_flat_budget`, with every curve's first
     interval kept)."""
     kept = _real_fixed(scene, fixed) + len(scene)
-    return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept)
+    return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept, unused)
 
 
 def _camera_partition(
@@ -330,7 +345,8 @@ def _camera_partition(
     # `_budgets`), as one flat list of queries.
     start, end = jax.lax.stop_gradient(_intervals(events))
     m, slots = events.shape
-    tested = _camera_interval_budget(scene, options, slots, _fixed_slots(scene, events, ranges))
+    fixed, unused = _fixed_slots(scene, events, ranges), _unused_slots(scene, shadows, options)
+    tested = _camera_interval_budget(scene, options, slots, fixed, unused)
     index, filled, _ = first_true((end > start).ravel(), tested)
     curve = index // slots
     t_mid = (0.5 * (start + end)).ravel()[index]
@@ -542,7 +558,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     fixed = pieces[0].shape[1] + k * per_camera
     slots = union.shape[1]
     kept = m * pieces[0].shape[1] + k * (_real_fixed(scene, per_camera - cut) + m * cut)
-    budget = _flat_budget(scene, options.max_intervals, slots, fixed, kept)
+    unused = k * _unused_slots(scene, partitions.shadows, options)
+    budget = _flat_budget(scene, options.max_intervals, slots, fixed, kept, unused)
     starts, ends = _intervals(union)
     used_mask = jax.lax.stop_gradient(starts) < 1.0
     index, filled, used = first_true(used_mask.ravel(), budget)
@@ -649,7 +666,8 @@ def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
         )
     slots = partitions.events.shape[-1]
     fixed = _fixed_slots(scene, partitions.events, partitions.ranges)
-    tested = _camera_interval_budget(scene, options, slots, fixed)
+    unused = _unused_slots(scene, partitions.shadows, options)
+    tested = _camera_interval_budget(scene, options, slots, fixed, unused)
     start, end = jax.vmap(_intervals)(partitions.events)
     count = jnp.max(fused_reduce(jnp.sum, end > start, (-1, -2)))
     budgets.append(
