@@ -295,11 +295,15 @@ def _flat_budget(
     return min(capacity, kept + m * ((slots - fixed + 1) // 2) - (unused + 1) // 2)
 
 
-def _camera_interval_budget(scene: Scene, options, slots: int, fixed: int, unused: int) -> int:
+def _camera_interval_budget(
+    scene: Scene, options, events, shadows: Roots, ranges: Roots | None
+) -> int:
     """The static number of one camera's intervals (of positive length, over the whole
-    scene) that are tested for visibility (`_flat_budget`, with every curve's first
-    interval kept)."""
+    scene) that are tested for visibility (`_flat_budget` of its event rows, with every
+    curve's first interval kept; the arrays may be batched over cameras)."""
+    fixed = _fixed_slots(scene, events, ranges)
     kept = _real_fixed(scene, fixed) + len(scene)
+    slots, unused = events.shape[-1], _unused_slots(scene, shadows, options)
     return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept, unused)
 
 
@@ -345,8 +349,7 @@ def _camera_partition(
     # `_budgets`), as one flat list of queries.
     start, end = jax.lax.stop_gradient(_intervals(events))
     m, slots = events.shape
-    fixed, unused = _fixed_slots(scene, events, ranges), _unused_slots(scene, shadows, options)
-    tested = _camera_interval_budget(scene, options, slots, fixed, unused)
+    tested = _camera_interval_budget(scene, options, events, shadows, ranges)
     index, filled, _ = first_true((end > start).ravel(), tested)
     curve = index // slots
     t_mid = (0.5 * (start + end)).ravel()[index]
@@ -664,10 +667,9 @@ def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
                 "range circle crossings on one curve",
             )
         )
-    slots = partitions.events.shape[-1]
-    fixed = _fixed_slots(scene, partitions.events, partitions.ranges)
-    unused = _unused_slots(scene, partitions.shadows, options)
-    tested = _camera_interval_budget(scene, options, slots, fixed, unused)
+    tested = _camera_interval_budget(
+        scene, options, partitions.events, partitions.shadows, partitions.ranges
+    )
     start, end = jax.vmap(_intervals)(partitions.events)
     count = jnp.max(fused_reduce(jnp.sum, end > start, (-1, -2)))
     budgets.append(
