@@ -496,6 +496,7 @@ class Circle(AbstractConic):
     radius: Float[Array, ""]
 
     def __init__(self, center: Float[ArrayLike, "2"], radius: Float[ArrayLike, ""]):
+        center = jnp.asarray(center)  # (a list has no dtype to promote)
         self.center = jnp.asarray(center, jnp.result_type(center, float))
         self.radius = jnp.asarray(radius, self.center.dtype)
 
@@ -540,6 +541,7 @@ class Ellipse(AbstractConic):
         semi_axes: Float[ArrayLike, "2"],
         angle: Float[ArrayLike, ""] = 0.0,
     ):
+        center = jnp.asarray(center)  # (a list has no dtype to promote)
         self.center = jnp.asarray(center, jnp.result_type(center, float))
         self.semi_axes = jnp.asarray(semi_axes, self.center.dtype)
         self.angle = jnp.asarray(angle, self.center.dtype)

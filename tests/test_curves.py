@@ -124,7 +124,7 @@ def test_normal_is_rotated_tangent(curve):
 
 def test_circle_closed_form():
     c, r = np.array([0.3, -0.2]), 1.7
-    circle = ocp.Circle(jnp.asarray(c), r)
+    circle = ocp.Circle(c.tolist(), r)  # a list, as a user writes it
     t = np.linspace(0.0, 1.0, 9)
     a = 2 * np.pi * t
     x, dx, ddx = (np.asarray(v) for v in circle.derivatives(t))
@@ -138,7 +138,7 @@ def test_circle_closed_form():
 
 def test_ellipse_closed_form():
     center, (a, b), phi = np.array([1.0, -2.0]), (2.0, 0.7), 0.4
-    e = ocp.Ellipse(jnp.asarray(center), jnp.array([a, b]), phi)
+    e = ocp.Ellipse(center.tolist(), [a, b], phi)
     x = np.asarray(e(np.linspace(0, 1, 13))) - center
     rot = np.array([[math.cos(phi), math.sin(phi)], [-math.sin(phi), math.cos(phi)]])
     y = x @ rot.T  # back into the ellipse's frame
