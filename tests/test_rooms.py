@@ -95,6 +95,31 @@ def test_builtin_room_matches_reference():
     assert abs(value / want - 1) < 1e-9
 
 
+def test_directional_cameras_on_the_room_mounts():
+    """Sixteen sets of four directional cameras on the built-in room's mounts, 5 cm
+    from its walls, as `optimize` draws its starts: Q and its gradient are defined at
+    every set (no root search fails so close to a wall, none raises), and two sets match
+    the NumPy reference."""
+    scene = ocp.scenes.room()
+    placement = ocp.DirectionalPlacement(
+        ocp.PolygonBoundary(ocp.scenes.ROOM_MOUNTS), half_fov=(0.3, 0.8), range=9.0
+    )
+    cameras = placement.cameras(placement.sample(jax.random.key(0), 4, 16))
+    value, grad = jax.tree.map(np.asarray, pose_value_and_grad(scene, cameras))
+    assert np.all(np.isfinite(value)) and np.all(value > 0)
+    assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grad))
+    for i in (0, 1):
+        poses = [
+            {"heading": float(h), "half_fov": float(f), "range": float(r)}
+            for h, f, r in zip(cameras.heading[i], cameras.half_fov[i], cameras.range[i])
+        ]
+        want = reference_visibility(
+            H.to_reference(scene), np.asarray(cameras.position[i]), "foreshortened",
+            poses=poses, observed=list(scene.observed()),
+        )
+        assert abs(value[i] / want - 1) < 1e-9
+
+
 def test_builtin_room_pose_gradients_match_finite_differences():
     scene, cameras, _, grad = builtin_room_results()
     flat = np.concatenate(
