@@ -285,12 +285,60 @@ def join_sources(*sources: RaySources) -> RaySources:
 
 
 def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
-    """A disc around each curve: centre of its grid points, radius to the farthest one
-    plus the longest step between grid points (an arc never strays farther)."""
-    centre = samples.x.map(lambda a: fused_reduce(jnp.sum, a, 1) / a.shape[1])
+    """A disc around each curve: centre the mean of its grid points (the closing node
+    counted once), radius to the farthest one plus the longest step between grid points
+    (an arc never strays farther)."""
+    centre = samples.x.map(lambda a: fused_reduce(jnp.sum, a[:, :-1], 1) / (a.shape[1] - 1))
     reach = norm(sub(samples.x, centre.map(lambda a: a[:, None])))
     step = norm(samples.x.map(lambda a: jnp.diff(a, axis=1)))
     return centre, fused_reduce(jnp.max, reach, 1) + fused_reduce(jnp.max, step, 1)
+
+
+def inscribed_radii(samples: Samples, centre: Vec, straight: np.ndarray) -> Float[Array, " m"]:
+    """The radius of a disc around each `centre` that lies inside its curve, 0 where none
+    is found: the centre's distance to the polygon of grid points, less the longest step
+    between them (as in `bounding_discs`, an arc never strays farther) unless the curve is
+    that polygon (`straight`, a static (m,) mask), where the centre lies inside that
+    polygon (winding number +-1)."""
+    p = sub(samples.x, centre.map(lambda a: a[:, None]))  # (m, N + 1), closed
+    a, b = p.map(lambda v: v[:, :-1]), p.map(lambda v: v[:, 1:])
+    winding = jnp.sum(jnp.arctan2(cross(a, b), dot(a, b)), 1) / (2 * jnp.pi)
+    edge = sub(b, a)
+    along = jnp.clip(
+        -dot(a, edge) / jnp.maximum(dot(edge, edge), jnp.finfo(edge.x.dtype).tiny), 0.0, 1.0
+    )
+    nearest = jnp.min(norm(add(a, edge.map(lambda v: along * v))), 1)
+    radius = nearest - jnp.where(straight, 0.0, jnp.max(norm(edge), 1))
+    return jnp.where((jnp.abs(winding) > 0.5) & (radius > 0), radius, 0.0)
+
+
+def polygon_crossings(
+    scene, samples: Samples, camera: Vec, ray: Vec, depth: Float[Array, " l"]
+) -> Float[Array, " l"]:
+    """The depth of each ray's first transversal crossing of a polygon's edge beyond
+    `depth` (in units of `ray`, from `camera`; inf where none), in closed form on every
+    edge of the scene's polygons (`Scene.straight`, their corners grid nodes of
+    `samples`). Crossings at an edge's ends, or just beyond the source, are left out:
+    a ray that only touches a vertex is not stopped by it."""
+    polygons = np.flatnonzero(scene.straight())
+    if not len(polygons):
+        return jnp.full(depth.shape, jnp.inf, depth.dtype)
+    times, real = scene.corners()
+    cells = samples.t.shape[-1] - 1
+    # The grid nodes of every polygon's vertices, and of the next vertex along it.
+    nodes = [np.rint(times[i, real[i]] * cells).astype(int) for i in polygons]
+    rows = np.concatenate([np.full(len(n), i) for i, n in zip(polygons, nodes)])
+    first, last = np.concatenate(nodes), np.concatenate([np.roll(n, -1) for n in nodes])
+    a = samples.x.map(lambda v: v[rows, first][None])  # (1, edges)
+    edge = sub(samples.x.map(lambda v: v[rows, last][None]), a)
+    to_start = sub(a, camera)
+    ray = ray.map(lambda v: v[:, None])  # (l, 1)
+    det = cross(ray, edge)
+    safe = jnp.where(det == 0, 1.0, det)
+    s, u = cross(to_start, edge) / safe, cross(to_start, ray) / safe
+    tol = 1e-9
+    crossed = (det != 0) & (u > tol) & (u < 1 - tol) & (s > depth[:, None] * (1 + tol))
+    return jnp.min(jnp.where(crossed, s, jnp.inf), 1)
 
 
 class GrazingProbes(NamedTuple):
@@ -409,24 +457,28 @@ def shadow_times(
     probe_sight = probes.sight.map(lambda a: jnp.take_along_axis(a, first, -1))
     probe_in = jnp.any(in_cell, -1)
 
-    def search(rows: np.ndarray, rays: int | None, slots: int, first_crossing: bool):
+    centre, radius = bounding_discs(samples)
+    to_centre = sub(centre, c0).map(lambda a: a[:, None])  # (m, 1)
+    ray_l = ray.map(lambda a: a[None])  # (1, l)
+    length2 = dot(ray_l, ray_l)
+
+    def search(rows: np.ndarray, rays: int | None, slots: int, first_crossing: bool, stop=None):
         """Brackets of the rays' crossings on the curves `rows` (static indices), at
         most `slots` per curve: `rays` of those that pass each curve's bounding disc
-        (None: every ray), and with `first_crossing` only the cells that can hold each
-        ray's first crossing of the curve. Returns the brackets, the ray of each slot
-        and the count per curve."""
+        before their depth `stop` (None: every ray), and with `first_crossing` only the
+        cells that can hold each ray's first crossing of the curve. Returns the
+        brackets, the ray of each slot and the count per curve."""
         n = len(rows)
-        ray_l = ray.map(lambda a: a[None])  # (1, l)
-        length = norm(ray_l)
+        length = jnp.sqrt(length2)
         if rays is None:
             passes = jnp.broadcast_to(tangency.valid[None], (n, sources))
         else:
-            centre, radius = bounding_discs(samples)
-            to_centre = sub(centre, c0).map(lambda a: a[rows, None])  # (n, 1)
-            reach = radius[rows, None] * length  # (n, l)
+            along = dot(ray_l, to_centre.map(lambda a: a[rows]))  # (n, l)
+            reach = radius[rows, None] * length
             passes = (
-                (jnp.abs(cross(ray_l, to_centre)) <= reach)
-                & (dot(ray_l, to_centre) + reach > tangency.depth[None] * length**2)
+                (jnp.abs(cross(ray_l, to_centre.map(lambda a: a[rows]))) <= reach)
+                & (along + reach > tangency.depth[None] * length2)
+                & (along - reach <= stop[None] * length2)
                 & tangency.valid[None]
             )
         if rays is None or rays >= sources:  # every ray searched on every curve
@@ -543,30 +595,45 @@ def shadow_times(
         depth = dot(hit_ray, sub(x, c0)) / dot(hit_ray, hit_ray)
         return s, valid & (depth > tangency.depth[line]), depth, settled
 
-    if scene.room:  # the objects, then the room (the last curve) for every ray
-        brackets, line, count = search(np.arange(m - 1), budget, budget, False)
-        # (the scene evaluates a row per curve: the room's is left empty)
-        brackets, line = jax.tree.map(
+    def nearest_hits(lines, solved):
+        """Each ray's nearest root beyond its source (inf where none)."""
+        nearest = jnp.full(sources, jnp.inf, ray.x.dtype)
+        for line, (_, beyond, depth, _) in zip(lines, solved):
+            nearest = nearest.at[line].min(jnp.where(beyond, depth, jnp.inf))
+        return nearest
+
+    # Where each ray surely has crossed a curve: where it crosses an edge of a polygon,
+    # enters an object's inscribed disc, or crosses the room. Objects whose bounding disc
+    # lies farther hold no first crossing and are not searched.
+    objects = np.arange(m - 1) if scene.room else np.arange(m)
+    inner = inscribed_radii(samples, centre, scene.straight())[objects, None]
+    along = dot(ray_l, to_centre.map(lambda a: a[objects]))
+    miss = inner**2 * length2 - cross(ray_l, to_centre.map(lambda a: a[objects])) ** 2
+    enter = (along - jnp.sqrt(jnp.maximum(miss, 0.0))) / length2
+    stop = jnp.min(jnp.where((miss > 0) & (enter > tangency.depth[None]), enter, jnp.inf), 0)
+    stop = jnp.minimum(stop, polygon_crossings(scene, samples, c0, ray, tangency.depth))
+    lines, solved, counts = [], [], []
+    if scene.room:  # the room (the last curve) for every ray
+        room = np.array([m - 1])
+        room_brackets, room_line, room_count = search(room, None, sources + budget, True)
+        lines.append(room_line)
+        solved.append(solve(scene.curves[-1], room_brackets, room_line, room))
+        counts.append(jnp.maximum(room_count - sources, 0))
+        stop = jnp.minimum(stop, nearest_hits(lines, solved))
+    brackets, line, count = search(objects, budget, budget, False, stop * (1 + 1e-6))
+    if scene.room:  # (the scene evaluates a row per curve: the room's is left empty)
+        padded = jax.tree.map(
             lambda a: jnp.pad(a, [(0, 1)] + [(0, 0)] * (a.ndim - 1)),
             (brackets._replace(count=None), line),
         )
-        room_brackets, room_line, room_count = search(
-            np.array([m - 1]), None, sources + budget, True
-        )
-        lines = [line[:-1], room_line]
-        solved = [
-            solve(scene, brackets, line, np.arange(m)),
-            solve(scene.curves[-1], room_brackets, room_line, np.array([m - 1])),
-        ]
-        solved[0] = jax.tree.map(lambda a: a[:-1] if a.ndim else a, solved[0])
-        count = jnp.concatenate([count, jnp.maximum(room_count - sources, 0)])
+        objects_solved = solve(scene, *padded, np.arange(m))
+        objects_solved = jax.tree.map(lambda a: a[:-1] if a.ndim else a, objects_solved)
     else:
-        brackets, line, count = search(np.arange(m), budget, budget, False)
-        lines, solved = [line], [solve(scene, brackets, line, np.arange(m))]
+        objects_solved = solve(scene, brackets, line, objects)
+    lines, solved, counts = [line, *lines], [objects_solved, *solved], [count, *counts]
+    count = jnp.concatenate(counts)
     # Each ray's first hit beyond its source, over the scene (near ties kept).
-    nearest = jnp.full(sources, jnp.inf, ray.x.dtype)
-    for line, (_, beyond, depth, _) in zip(lines, solved):
-        nearest = nearest.at[line].min(jnp.where(beyond, depth, jnp.inf))
+    nearest = nearest_hits(lines, solved)
     width = max(line.shape[-1] for line in lines)
     t, first_hit = [], []
     for line, (s, beyond, depth, _) in zip(lines, solved):

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from ._curves import AbstractConic, AbstractCurve, UnitFrame, _is_concrete
+from ._curves import AbstractConic, AbstractCurve, PiecewiseCurve, UnitFrame, _is_concrete
 from ._validity import check_scene
 from ._vec import Vec
 
@@ -195,6 +195,11 @@ class Scene(eqx.Module):
             times[i, : len(c)] = c
             real[i, : len(c)] = True
         return times, real
+
+    def straight(self) -> np.ndarray:
+        """Static (m,) array: which curves are polygons (straight pieces from corner to
+        corner: on a grid through the corners, the polygon of grid points is the curve)."""
+        return np.array([isinstance(c, PiecewiseCurve) and c.degree == 1 for c in self.curves])
 
     def pieces(self, cells: int) -> np.ndarray | None:
         """Static (m, cells) array: which smooth piece of its curve each grid cell lies

@@ -100,7 +100,11 @@ class VisibilityOptions(eqx.Module):
       tangency point, a corner or a wedge edge casts one shadow at most, where it first
       crosses a curve beyond its source (behind that, the curve it crossed hides both
       sides of the ray): `max_shadows` bounds the rays that pass one object's bounding
-      disc, and a room, which every ray meets, has a slot for every ray besides it.
+      disc before they surely have crossed a curve (an edge of a polygon, an object's
+      inscribed disc, the room), and a room, which every ray meets, has a slot for every
+      ray besides it. On the random floors of `benchmarks/floors.py` (up to 128 cells, 64
+      objects, 64 cameras) an object holds at most 11 such rays, its own among them: this
+      bound depends on the data (a large object that many rays pass close to needs more).
       Called outside any jit, `visibility`, `visible_intervals`, `optimize`, `greedy`,
       `exhaustive`, `slsqp` and the plots grow an overflowed budget and compile again,
       with a warning; inside a jit an overflow raises an error naming the option

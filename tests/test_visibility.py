@@ -1092,6 +1092,69 @@ def test_each_ray_casts_one_shadow_at_its_first_crossing(case, reference_specs):
         assert min(np.linalg.norm(x - point) for i, x in got if i == curve) <= 1e-6 * size
 
 
+INSCRIBED_CASES = {
+    # The grid polygon's nearest chord r cos(pi / N), less the longest step 2 r sin(pi / N).
+    "circle": (ocp.Circle([1.0, -1.0], 2.0), 2.0 * (math.cos(math.pi / 64) - 2 * math.sin(math.pi / 64))),
+    # The mean of the grid points, (1.5, 1.75), lies in the U's notch: no disc.
+    "U shape": (
+        ocp.PiecewiseCurve.polygon([(0, 0), (3, 0), (3, 3), (2, 3), (2, 1), (1, 1), (1, 3), (0, 3)]),
+        0.0,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", INSCRIBED_CASES)
+def test_inscribed_discs(case):
+    """A disc inside each curve (it culls the rays that certainly stop at a curve from
+    the search of the curves behind it): the closed form for a circle's grid, and none
+    where the centre lies outside the curve."""
+    curve, want = INSCRIBED_CASES[case]
+    samples = _events.sample(ocp.Scene([curve]), 64)
+    centre, _ = _events.bounding_discs(samples)
+    radius = float(_events.inscribed_radii(samples, centre, np.array([case != "circle"]))[0])
+    assert radius == pytest.approx(want, abs=1e-12)
+
+
+BLOCKS = {
+    # a polygon stops a ray where it crosses an edge, a curve inside its inscribed disc
+    "square block": ocp.PiecewiseCurve.polygon([(2.0, -1.0), (4.0, -1.0), (4.0, 1.0), (2.0, 1.0)]),
+    "round block": ocp.Circle([3.0, 0.0], 1.0),
+}
+
+
+@pytest.mark.parametrize("block", BLOCKS)
+def test_rays_stopped_by_a_nearer_object_are_not_searched_behind_it(block):
+    """From the origin, a small square's silhouette rays (at +-3.2 degrees) cross the
+    block around (3, 0) and then pass the bounding disc of the square at x in [8, 9]
+    behind it. They stop at the block, so the far square's search holds only its own
+    two silhouette corners' rays (each object's own rays pass its disc; the block's
+    also holds the small square's)."""
+    square = ocp.PiecewiseCurve.polygon([(0.9, -0.05), (1.0, -0.05), (1.0, 0.05), (0.9, 0.05)])
+    far = ocp.PiecewiseCurve.polygon([(8.0, -0.5), (9.0, -0.5), (9.0, 0.5), (8.0, 0.5)])
+    scene = ocp.Scene([square, BLOCKS[block], far])
+    _, sources, shadows = jax.jit(camera_events)(scene, jnp.zeros(2))
+    assert int(jnp.sum(sources.valid & (sources.curve == 2))) == 2
+    np.testing.assert_array_equal(np.asarray(shadows.count), [2, 4, 2])
+
+
+def test_polygon_crossings_are_the_first_crossings_of_a_polygon_floor():
+    """The closed-form crossings of rays with a floor's walls and polygon furniture are
+    each ray's first crossing beyond its source, as the NumPy reference's polylines give
+    it (rays that only touch a vertex are not stopped by it)."""
+    scene = ocp.scenes.floor(seed=11, cells=10, objects=5, kinds=("rectangle", "l_shape", "triangle"))
+    camera = np.asarray(ocp.scenes.free_points(scene, 1, seed=11)[0])
+    _, sources, _ = jax.jit(camera_events)(scene, jnp.asarray(camera))
+    samples = _events.sample(scene, grid_cells(scene))
+    ray = Vec(sources.point.x - camera[0], sources.point.y - camera[1])
+    got = np.asarray(_events.polygon_crossings(scene, samples, Vec(*camera), ray, sources.depth))
+    valid = np.asarray(sources.valid)
+    rays = np.asarray(sources.point.stack())[valid] - camera
+    hits = _first_crossings(H.to_reference(scene), camera, rays + camera)
+    want = [np.inf if hit is None else (hit[1] - camera) @ d / (d @ d) for hit, d in zip(hits, rays)]
+    assert np.isfinite(got[valid]).sum() >= 10
+    np.testing.assert_allclose(got[valid], want, rtol=1e-9)
+
+
 def test_event_time_derivatives_wrt_scene_match_finite_differences():
     C = np.asarray(EVENT_CAMERAS[1])
     tan_t, tan_valid, sh_t, sh_valid, jac = event_data(1)
