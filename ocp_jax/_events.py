@@ -312,30 +312,52 @@ def inscribed_radii(samples: Samples, centre: Vec, straight: np.ndarray) -> Floa
     return jnp.where((jnp.abs(winding) > 0.5) & (radius > 0), radius, 0.0)
 
 
-def polygon_crossings(
-    scene, samples: Samples, camera: Vec, ray: Vec, depth: Float[Array, " l"]
-) -> Float[Array, " l"]:
-    """The depth of each ray's first transversal crossing of a polygon's edge beyond
-    `depth` (in units of `ray`, from `camera`; inf where none), in closed form on every
-    edge of the scene's polygons (`Scene.straight`, their corners grid nodes of
-    `samples`). Crossings at an edge's ends, or just beyond the source, are left out:
-    a ray that only touches a vertex is not stopped by it."""
+class PolygonEdges(NamedTuple):
+    """The edges of the scene's polygons (`Scene.straight`), flattened over the scene:
+    arrays (E,). On a grid through the corners, an edge is a straight run of cells."""
+
+    start: Vec
+    end: Vec
+    curve: np.ndarray  # static: the edge's curve
+    piece: np.ndarray  # static: its smooth piece (`Scene.pieces`)
+
+
+def polygon_edges(scene, samples: Samples) -> PolygonEdges | None:
+    """The edges of the scene's polygons from the grid points at their corners (None
+    where the scene has no polygon)."""
     polygons = np.flatnonzero(scene.straight())
     if not len(polygons):
-        return jnp.full(depth.shape, jnp.inf, depth.dtype)
+        return None
     times, real = scene.corners()
     cells = samples.t.shape[-1] - 1
     # The grid nodes of every polygon's vertices, and of the next vertex along it.
     nodes = [np.rint(times[i, real[i]] * cells).astype(int) for i in polygons]
-    rows = np.concatenate([np.full(len(n), i) for i, n in zip(polygons, nodes)])
+    curve = np.concatenate([np.full(len(n), i) for i, n in zip(polygons, nodes)])
     first, last = np.concatenate(nodes), np.concatenate([np.roll(n, -1) for n in nodes])
-    a = samples.x.map(lambda v: v[rows, first][None])  # (1, edges)
-    edge = sub(samples.x.map(lambda v: v[rows, last][None]), a)
-    to_start = sub(a, camera)
+    piece = scene.pieces(cells)[curve, first]  # (the cell after the first corner)
+    return PolygonEdges(
+        samples.x.map(lambda v: v[curve, first]),
+        samples.x.map(lambda v: v[curve, last]),
+        curve,
+        piece,
+    )
+
+
+def polygon_crossings(
+    edges: PolygonEdges | None, camera: Vec, ray: Vec, depth: Float[Array, " l"]
+) -> Float[Array, " l"]:
+    """The depth of each ray's first transversal crossing of a polygon's edge beyond
+    `depth` (in units of `ray`, from `camera`; inf where none), in closed form.
+    Crossings at an edge's ends, or just beyond the source, are left out: a ray that
+    only touches a vertex is not stopped by it."""
+    if edges is None:
+        return jnp.full(depth.shape, jnp.inf, depth.dtype)
+    a = sub(edges.start, camera).map(lambda v: v[None])  # (1, E)
+    edge = sub(edges.end, edges.start).map(lambda v: v[None])
     ray = ray.map(lambda v: v[:, None])  # (l, 1)
     det = cross(ray, edge)
     safe = jnp.where(det == 0, 1.0, det)
-    s, u = cross(to_start, edge) / safe, cross(to_start, ray) / safe
+    s, u = cross(a, edge) / safe, cross(a, ray) / safe
     tol = 1e-9
     crossed = (det != 0) & (u > tol) & (u < 1 - tol) & (s > depth[:, None] * (1 + tol))
     return jnp.min(jnp.where(crossed, s, jnp.inf), 1)
@@ -611,7 +633,8 @@ def shadow_times(
     miss = inner**2 * length2 - cross(ray_l, to_centre.map(lambda a: a[objects])) ** 2
     enter = (along - jnp.sqrt(jnp.maximum(miss, 0.0))) / length2
     stop = jnp.min(jnp.where((miss > 0) & (enter > tangency.depth[None]), enter, jnp.inf), 0)
-    stop = jnp.minimum(stop, polygon_crossings(scene, samples, c0, ray, tangency.depth))
+    edges = polygon_edges(scene, samples)
+    stop = jnp.minimum(stop, polygon_crossings(edges, c0, ray, tangency.depth))
     lines, solved, counts = [], [], []
     if scene.room:  # the room (the last curve) for every ray
         room = np.array([m - 1])

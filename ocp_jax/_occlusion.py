@@ -31,9 +31,10 @@ event times and the integrand).
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from ._events import GrazingProbes, Samples, grid_cell
+from ._events import GrazingProbes, PolygonEdges, Samples, grid_cell
 from ._materialize import computed_on_one_thread
 from ._reductions import fused_reduce
 from ._roots import cell_ends, hermite_extremum
@@ -119,6 +120,21 @@ def deflated_depth(excess, deflator, reach, r, r_mid):
     return in_segment
 
 
+def _crosses_edges(d: Vec, reach, start: Vec, end: Vec) -> Bool[Array, "q e"]:
+    """Whether each straight edge (start, end relative to the camera, arrays (e,)) crosses
+    the open segment from the camera to each query point (d = m - C, reach = |d|^2,
+    arrays (q,)): the sign change of g = cross(d, x - C) between the edge's ends, the one
+    cell of `_crosses_segment` with the depth of `linear_depth`."""
+    d = d.map(lambda a: a[:, None])
+    g0, g1 = cross(d, start.map(lambda a: a[None])), cross(d, end.map(lambda a: a[None]))
+    depth = jnp.stack(
+        [dot(d, start.map(lambda a: a[None])), dot(d, end.map(lambda a: a[None]))], -1
+    )
+    in_segment = linear_depth(depth, reach[:, None, None])
+    crossing = (g0 >= 0) != (g1 >= 0)
+    return crossing & in_segment(g0[..., None], (g0 - g1)[..., None], True)[..., 0]
+
+
 def _deflator(u):
     """p = u (1 - u) (1 + u), u = s - t_m in [-1, 1]: the roots of the own curve's line of
     sight at t_m and at its periodic images t_m -+ 1, negative before t_m, positive after."""
@@ -148,6 +164,7 @@ def visible_points(
     dx_mid: Vec,
     probes: GrazingProbes,
     pieces: Int[Array, "m n"] | None = None,
+    edges: PolygonEdges | None = None,
     one_thread: bool = False,
 ) -> Bool[Array, " q"]:
     """chi(t_mid[k], camera) for query points x_mid, x'_mid (arrays (q,)), point k on curve
@@ -156,8 +173,15 @@ def visible_points(
     of each cell of the grid (`_events.grid_pieces`, None where every curve is one); with
     `one_thread`, the test on the own curve is one kernel on one thread
     (`computed_on_one_thread`). The queries are a flat list over the scene, so that a
-    camera's test costs what its intervals are, not the most any curve has."""
+    camera's test costs what its intervals are, not the most any curve has.
+
+    The polygons' `edges` (`_events.polygon_edges`) are tested whole, not cell by cell:
+    on a straight edge g is affine, so the edge crosses the segment (C, m) iff g changes
+    sign between its ends at a depth in (0, |d|^2), the test of its cells taken at once.
+    The grid's rows of the polygons are then left out of the test of other curves."""
     m = grid.t.shape[0]
+    # The rows tested on the grid: every curve but the polygons whose edges are given.
+    rows = np.arange(m) if edges is None else np.setdiff1d(np.arange(m), edges.curve)
     h = jnp.diff(grid.t)  # (m, N + 1)
     d = sub(x_mid, camera)  # (q,)
     reach = dot(d, d)
@@ -172,18 +196,29 @@ def visible_points(
     same_piece = None
     deflated_cells = own_row[..., None]
     if pieces is not None:
-        same_piece = pieces[curve] == pieces[curve, query_cell][:, None]  # (q, N + 1)
+        query_piece = pieces[curve, query_cell]
+        same_piece = pieces[curve] == query_piece[:, None]  # (q, N + 1)
         deflated_cells = deflated_cells & same_piece[:, None]
 
-    # Every curve's cells but those: arrays (q, m, N + 1) (none for a single smooth curve).
+    # Every curve's cells but those: arrays (q, n, N + 1) on the `rows` tested on the grid
+    # (none for a single smooth curve).
     blocked = jnp.zeros(t_mid.shape, bool)
     dd = d.map(lambda a: a[:, None, None])
-    if m > 1 or pieces is not None:
-        sight_j = sight.map(lambda a: a[None])
-        dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None])))
+    if len(rows) and (m > 1 or pieces is not None):
+        sight_j = sight.map(lambda a: a[None, rows])
+        dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None, rows])))
         depth_j = linear_depth(dot(dd, sight_j), reach[:, None, None])
-        plain = _crosses_segment(cross(dd, sight_j), dg_j, h[None], depth_j)
-        blocked = fused_reduce(jnp.any, plain & ~deflated_cells, (-1, -2))
+        plain = _crosses_segment(cross(dd, sight_j), dg_j, h[None, rows], depth_j)
+        blocked = fused_reduce(jnp.any, plain & ~deflated_cells[:, rows], (-1, -2))
+    if edges is not None:  # every edge but the query's own (tested deflated below)
+        own_edge = (edges.curve[None] == curve[:, None]) & (
+            edges.piece[None] == query_piece[:, None]
+        )
+        blocked = blocked | fused_reduce(
+            jnp.any,
+            _crosses_edges(d, reach, sub(edges.start, camera), sub(edges.end, camera)) & ~own_edge,
+            -1,
+        )
     if m > 1:
         on_other = jax.tree.map(lambda a: a[None], probes)  # (1, m, r)
         blocked = blocked | fused_reduce(

@@ -49,6 +49,7 @@ from ._events import (
     grazing_probes,
     grid_pieces,
     join_sources,
+    polygon_edges,
     range_times,
     sample,
     shadow_times,
@@ -370,8 +371,9 @@ def _camera_partition(
         if scene.has_corners:
             smooth = grid_pieces(scene.pieces(samples.t.shape[0] - 1), grid)
         probes = grazing_probes(camera, grid, tangents, points)  # on the camera's grid
+        edges = polygon_edges(scene, samples)
         visible = visible_points(
-            seen_from, grid, sense, curve, t_mid, x_mid, dx_mid, probes, smooth, one_thread
+            seen_from, grid, sense, curve, t_mid, x_mid, dx_mid, probes, smooth, edges, one_thread
         )
     visible = visible & in_view(frozen, x_mid) & filled
     # (slots past the count drop out: their index is out of range)

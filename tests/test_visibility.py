@@ -1146,13 +1146,39 @@ def test_polygon_crossings_are_the_first_crossings_of_a_polygon_floor():
     _, sources, _ = jax.jit(camera_events)(scene, jnp.asarray(camera))
     samples = _events.sample(scene, grid_cells(scene))
     ray = Vec(sources.point.x - camera[0], sources.point.y - camera[1])
-    got = np.asarray(_events.polygon_crossings(scene, samples, Vec(*camera), ray, sources.depth))
+    edges = _events.polygon_edges(scene, samples)
+    got = np.asarray(_events.polygon_crossings(edges, Vec(*camera), ray, sources.depth))
     valid = np.asarray(sources.valid)
     rays = np.asarray(sources.point.stack())[valid] - camera
     hits = _first_crossings(H.to_reference(scene), camera, rays + camera)
     want = [np.inf if hit is None else (hit[1] - camera) @ d / (d @ d) for hit, d in zip(hits, rays)]
     assert np.isfinite(got[valid]).sum() >= 10
     np.testing.assert_allclose(got[valid], want, rtol=1e-9)
+
+
+def test_edges_cross_lines_of_sight_as_segments_do():
+    """A polygon's edge tested whole (`_crosses_edges`) blocks a line of sight exactly
+    where the two segments intersect (orientation tests in NumPy), on random edges and
+    query points around a camera."""
+    rng = np.random.default_rng(0)
+    camera = np.array([0.3, -0.2])
+    start, end = rng.normal(size=(2, 300, 2)) * 3
+    query = rng.normal(size=(200, 2)) * 3
+
+    def side(p, q, r):  # orientation of r about the line p -> q
+        return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
+                       - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
+
+    c, m = camera[None, None], query[:, None]
+    a, b = start[None], end[None]
+    want = (side(c, m, a) != side(c, m, b)) & (side(a, b, c) != side(a, b, m))
+    d = query - camera
+    got = _occlusion._crosses_edges(
+        Vec(*jnp.asarray(d).T), jnp.asarray(np.sum(d * d, -1)),
+        Vec(*jnp.asarray(start - camera).T), Vec(*jnp.asarray(end - camera).T),
+    )
+    assert 0.05 < want.mean() < 0.95
+    np.testing.assert_array_equal(np.asarray(got), want)
 
 
 def test_event_time_derivatives_wrt_scene_match_finite_differences():
