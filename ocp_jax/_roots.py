@@ -273,9 +273,9 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     Returns the roots (no derivative attached), whether each is a root (a candidate
     from an exact sign change always is; one from an interpolated (near-double) bracket
     only once an iterate has confirmed the sign change, F of the other sign than at the
-    bracket's start, or |F| <= 1e3 eps scale at the end) and whether the search is done:
-    every root final within the `iterations` or |F| <= 1e3 eps scale there (false: the
-    budget was exceeded, to be reported).
+    bracket's grid node, or |F| <= 1e3 eps scale at the end) and whether the search is
+    done: every root final within the `iterations` or |F| <= 1e3 eps scale there (false:
+    the budget was exceeded, to be reported).
 
     With `store`, each step computes F and F' in one kernel and stores them, as does the
     validity check (`materialize`): XLA's CPU backend otherwise computes F in each
@@ -289,6 +289,10 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     # vmapped banana batch of benchmarks/evaluate.py ran about 20% slower).
     lo, hi, t = brackets.lo, brackets.hi, brackets.guess
     confirmed = ~brackets.turning
+    # An interpolated bracket's end at the cubic's extremum has a predicted sign only:
+    # its root is confirmed by an iterate of the sign opposite to that at the bracket's
+    # grid node, lo in a cell's first slot, hi (of the sign opposite to lo's) in its second.
+    second = brackets.source % 2 == 1
     eps = jnp.finfo(t.dtype).eps
     key = (args, lo)  # for `materialize`: a scene parameter where args hold one
 
@@ -314,7 +318,8 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
         final = (jnp.abs(new - t) <= 4 * eps) | (
             inside & (16.0 * brackets.curvature * moved * moved <= eps)
         )
-        return i + 1, lo, hi, new, confirmed | ~same, final | ~brackets.candidate
+        opposite = jnp.where(second, same, ~same)
+        return i + 1, lo, hi, new, confirmed | opposite, final | ~brackets.candidate
 
     def running(carry):
         i, *_, final = carry
@@ -326,8 +331,9 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     converged = jnp.abs(value) <= 1e3 * eps * scale
     valid = brackets.candidate & (confirmed | converged)
     # Not final but |F| at rounding level: at a double root (two cameras' q that touch)
-    # the iterates wander in the noise and need not settle, and any of them will do.
-    return t, valid, jnp.all(final | converged)
+    # the iterates wander in the noise and need not settle, and any of them will do. An
+    # unconfirmed interpolated bracket holds no root: its iterates need not settle.
+    return t, valid, jnp.all(final | converged | ~valid)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))

@@ -74,6 +74,26 @@ def test_a_sign_change_across_a_cell_is_never_split_away():
     assert abs(float(fn(t[0], None)[0])) < 1e-14 and 0.05 < float(t[0]) < 0.07
 
 
+def test_a_pair_the_cubic_predicts_but_f_lacks_holds_no_root():
+    """On one cell, F = 1 + (t - 1/2)^2 / 10 > 0 with node slopes -6 and 6 (as where F is
+    sampled more coarsely than it bends): the Hermite cubic 1.025 - 6 s + 6 s^2 dips to
+    -0.475 at s = 1/2 and predicts a pair of roots there. F has none: neither slot holds
+    a root, and the search is done. (The second slot had been confirmed by iterates of
+    F's sign, the sign of its grid node: a root reported where F = 1.)"""
+
+    def fn(t, _):
+        return 1.0 + 0.1 * (t - 0.5) ** 2, 0.2 * (t - 0.5), jnp.ones_like(t)
+
+    nodes = jnp.array([0.0, 1.0])
+    values = fn(nodes, None)[0]
+    brackets = _roots.grid_brackets(nodes, values[None], jnp.array([[-6.0, 6.0]]), 2)
+    _, valid, settled = _roots.solve_roots(
+        fn, None, brackets, OPTIONS.newton_iterations, 1.0, False
+    )
+    assert int(brackets.count) == 2 and bool(jnp.all(brackets.turning & brackets.candidate))
+    assert not bool(jnp.any(valid)) and bool(settled)
+
+
 # ===========================================================================
 # closed forms: one circle
 # ===========================================================================
