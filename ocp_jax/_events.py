@@ -479,10 +479,12 @@ def shadow_times(
     probe_sight = probes.sight.map(lambda a: jnp.take_along_axis(a, first, -1))
     probe_in = jnp.any(in_cell, -1)
 
+    # Each ray against each curve's bounding disc centre: along the ray and across it.
     centre, radius = bounding_discs(samples)
     to_centre = sub(centre, c0).map(lambda a: a[:, None])  # (m, 1)
     ray_l = ray.map(lambda a: a[None])  # (1, l)
     length2 = dot(ray_l, ray_l)
+    along, across = dot(ray_l, to_centre), cross(ray_l, to_centre)  # (m, l)
 
     def search(rows: np.ndarray, rays: int | None, slots: int, first_crossing: bool, stop=None):
         """Brackets of the rays' crossings on the curves `rows` (static indices), at
@@ -495,12 +497,11 @@ def shadow_times(
         if rays is None:
             passes = jnp.broadcast_to(tangency.valid[None], (n, sources))
         else:
-            along = dot(ray_l, to_centre.map(lambda a: a[rows]))  # (n, l)
-            reach = radius[rows, None] * length
+            reach = radius[rows, None] * length  # (n, l)
             passes = (
-                (jnp.abs(cross(ray_l, to_centre.map(lambda a: a[rows]))) <= reach)
-                & (along + reach > tangency.depth[None] * length2)
-                & (along - reach <= stop[None] * length2)
+                (jnp.abs(across[rows]) <= reach)
+                & (along[rows] + reach > tangency.depth[None] * length2)
+                & (along[rows] - reach <= stop[None] * length2)
                 & tangency.valid[None]
             )
         if rays is None or rays >= sources:  # every ray searched on every curve
@@ -629,9 +630,8 @@ def shadow_times(
     # lies farther hold no first crossing and are not searched.
     objects = np.arange(m - 1) if scene.room else np.arange(m)
     inner = inscribed_radii(samples, centre, scene.straight())[objects, None]
-    along = dot(ray_l, to_centre.map(lambda a: a[objects]))
-    miss = inner**2 * length2 - cross(ray_l, to_centre.map(lambda a: a[objects])) ** 2
-    enter = (along - jnp.sqrt(jnp.maximum(miss, 0.0))) / length2
+    miss = inner**2 * length2 - across[objects] ** 2
+    enter = (along[objects] - jnp.sqrt(jnp.maximum(miss, 0.0))) / length2
     stop = jnp.min(jnp.where((miss > 0) & (enter > tangency.depth[None]), enter, jnp.inf), 0)
     edges = polygon_edges(scene, samples)
     stop = jnp.minimum(stop, polygon_crossings(edges, c0, ray, tangency.depth))

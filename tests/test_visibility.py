@@ -1129,9 +1129,10 @@ def test_inscribed_discs(case):
     the search of the curves behind it): the closed form for a circle's grid, and none
     where the centre lies outside the curve."""
     curve, want = INSCRIBED_CASES[case]
-    samples = _events.sample(ocp.Scene([curve]), 64)
+    scene = ocp.Scene([curve])
+    samples = _events.sample(scene, 64)
     centre, _ = _events.bounding_discs(samples)
-    radius = float(_events.inscribed_radii(samples, centre, np.array([case != "circle"]))[0])
+    radius = float(_events.inscribed_radii(samples, centre, scene.straight())[0])
     assert radius == pytest.approx(want, abs=1e-12)
 
 
