@@ -4,7 +4,8 @@ the visibility of a curve can change.
 - Tangency times (Eqs. 5.21, 5.33): roots of F(t) = n(t) . (x(t) - C), written here as
   cross(x'(t), x(t) - C); the line of sight grazes the curve.
 - Shadow times (Eqs. 5.22, 5.34): for every tangency point P = x_j(T), roots of
-  F(s) = cross(P - C, x_i(s) - C) beyond P (the grazing ray hits curve i behind P).
+  F(s) = cross(P - C, x_i(s) - C) beyond P (the grazing ray hits curve i behind P); on
+  a polygon's straight edges, the ray's crossing in closed form.
 - Crossover times: with several cameras and a camera-dependent q, where two cameras'
   q are equal, so that max_c q_c is smooth between events.
 - For a `Camera` with a view wedge, the wedge's two edges are rays from C as well
@@ -173,16 +174,33 @@ def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> S
 
 def tangency_times(scene, camera: Vec, grid: Samples, budget: int, iterations: int) -> Roots:
     """Tangency times on every curve: roots of F(t) = cross(x'(t), x(t) - C) (Eq. 5.21),
-    bracketed on the camera's grid (`with_nearest_node`)."""
+    bracketed on the camera's grid (`with_nearest_node`). A polygon has none (on a
+    straight edge F is constant, and its corners are ray sources of their own): only
+    the curved rows are searched."""
+    curved = np.flatnonzero(~scene.straight())
+    m = len(scene)
+    if not len(curved):
+        empty = jnp.ones((m, budget), grid.x.x.dtype)
+        return Roots(empty, empty < 0, jnp.zeros(m, int), jnp.asarray(True))
+    if len(curved) < m:
+        grid = jax.tree.map(lambda a: a[curved], grid)
     sight = sub(grid.x, jax.lax.stop_gradient(camera))
     values = grid.at_nodes(lambda dx, _: cross(dx, sight)[:, None])
     slopes = grid.at_nodes(lambda _, ddx: cross(ddx, sight)[:, None])
     scale = grid.at_nodes(lambda dx, _: (norm(dx) * norm(sight))[:, None])
     brackets = grid_brackets(grid.t[:, None], values, slopes, budget, scale=scale)
+    curves = scene.rows(curved)
     t, valid, settled = solve_roots(
-        tangency_function, (scene, camera), brackets, iterations, 1.0, scene.costly_evaluation()
+        tangency_function, (curves, camera), brackets, iterations, 1.0, curves.costly_evaluation()
     )
-    return Roots(t, valid, brackets.count, settled)
+    if len(curved) == m:
+        return Roots(t, valid, brackets.count, settled)
+    return Roots(
+        jnp.ones((m, budget), t.dtype).at[curved].set(t),
+        jnp.zeros((m, budget), bool).at[curved].set(valid),
+        jnp.zeros(m, int).at[curved].set(brackets.count),
+        settled,
+    )
 
 
 class RaySources(NamedTuple):
@@ -237,6 +255,17 @@ def tangency_points(scene, tangents: Roots) -> RaySources:
         jnp.ones_like(tangents.t).ravel(),
         jnp.ones(tangents.t.size, bool),
     )
+
+
+def tangency_sources(scene, points: RaySources) -> RaySources:
+    """The `tangency_points` that cast rays: those of the curved rows (a polygon has no
+    tangency point, `tangency_times`), so that its empty slots take no ray."""
+    straight = scene.straight()
+    if not straight.any():
+        return points
+    slots = points.t.shape[0] // len(scene)
+    keep = np.flatnonzero(np.repeat(~straight, slots))
+    return jax.tree.map(lambda a: a[keep], points)
 
 
 def silhouette_corners(scene, camera: Vec, samples: Samples) -> RaySources:
@@ -320,6 +349,8 @@ class PolygonEdges(NamedTuple):
     end: Vec
     curve: np.ndarray  # static: the edge's curve
     piece: np.ndarray  # static: its smooth piece (`Scene.pieces`)
+    t_start: np.ndarray  # static: the curve's parameter at the edge's start ...
+    t_end: np.ndarray  # ... and at its end (1 for the last edge): x is affine in t between
 
 
 def polygon_edges(scene, samples: Samples) -> PolygonEdges | None:
@@ -340,18 +371,31 @@ def polygon_edges(scene, samples: Samples) -> PolygonEdges | None:
         samples.x.map(lambda v: v[curve, last]),
         curve,
         piece,
+        first / cells,
+        np.where(last == 0, cells, last) / cells,
     )
+
+
+class PolygonCrossings(NamedTuple):
+    """Each ray's first transversal crossing of a polygon's edge beyond its source:
+    arrays (l,)."""
+
+    depth: Float[Array, " l"]  # in units of the ray, from the camera (inf where none)
+    edge: Int[Array, " l"]  # the edge crossed (0 where none)
 
 
 def polygon_crossings(
     edges: PolygonEdges | None, camera: Vec, ray: Vec, depth: Float[Array, " l"]
-) -> Float[Array, " l"]:
-    """The depth of each ray's first transversal crossing of a polygon's edge beyond
-    `depth` (in units of `ray`, from `camera`; inf where none), in closed form.
-    Crossings at an edge's ends, or just beyond the source, are left out: a ray that
-    only touches a vertex is not stopped by it."""
+) -> PolygonCrossings:
+    """The first transversal crossing of each ray (from `camera`, along `ray`) with a
+    polygon's edge beyond `depth`, in closed form: on the edge a + u e, the ray's point
+    C + s r with s = cross(a - C, e) / cross(r, e), u = cross(a - C, r) / cross(r, e).
+    Crossings at an edge's ends (u within 1e-9 of 0 or 1), or just beyond the source,
+    are left out: a ray that only touches a vertex is not stopped by it, and one that
+    passes through a vertex meets a corner, itself an event. No derivative."""
     if edges is None:
-        return jnp.full(depth.shape, jnp.inf, depth.dtype)
+        none = jnp.full(depth.shape, jnp.inf, depth.dtype)
+        return PolygonCrossings(none, jnp.zeros(depth.shape, int))
     a = sub(edges.start, camera).map(lambda v: v[None])  # (1, E)
     edge = sub(edges.end, edges.start).map(lambda v: v[None])
     ray = ray.map(lambda v: v[:, None])  # (l, 1)
@@ -360,7 +404,27 @@ def polygon_crossings(
     s, u = cross(a, edge) / safe, cross(a, ray) / safe
     tol = 1e-9
     crossed = (det != 0) & (u > tol) & (u < 1 - tol) & (s > depth[:, None] * (1 + tol))
-    return jnp.min(jnp.where(crossed, s, jnp.inf), 1)
+    s = jnp.where(crossed, s, jnp.inf)
+    return PolygonCrossings(jnp.min(s, 1), jnp.argmin(s, 1))
+
+
+def polygon_shadow_times(
+    scene, edges: PolygonEdges, camera: Vec, point: Vec, crossings: PolygonCrossings
+) -> Float[Array, " l"]:
+    """The parameter t of each ray's crossing (`polygon_crossings`) on its edge's curve,
+    t = t_start + u (t_end - t_start), differentiable in the camera, the ray's source
+    `point` and the scene (the edge's ends are evaluated on it); 1 where the ray crosses
+    no edge. Its derivative is that of the shadow time's implicit function (Eq. 5.32) on
+    a straight edge."""
+    found = jnp.isfinite(crossings.depth)
+    curve = jnp.asarray(edges.curve)[crossings.edge]
+    start, end = (jnp.asarray(t, scene.dtype)[crossings.edge] for t in (edges.t_start, edges.t_end))
+    ends = scene.components_at(curve, jnp.stack([start, end], -1))[0]
+    a = sub(ends.map(lambda v: v[:, 0]), camera)
+    edge = ends.map(lambda v: v[:, 1] - v[:, 0])
+    ray = sub(point, camera)
+    u = cross(a, ray) / jnp.where(found, cross(ray, edge), 1.0)
+    return jnp.where(found, start + u * (end - start), 1.0)
 
 
 class GrazingProbes(NamedTuple):
@@ -442,14 +506,16 @@ def shadow_times(
     point, so later crossings are seen on neither side. Each ray has at most one shadow
     time, the roots found behind another curve's being dropped.
 
-    On an object, only rays that pass through its bounding disc beyond their source are
-    searched (at most `budget` of them per object; the count is returned with the roots'
-    so that an overflow is reported). The room is met by every ray: its row is searched
-    for all of them and has a slot per ray besides the `budget` (its count is that of
-    the roots beyond one per ray). Cells of the room that cannot hold a ray's first
-    crossing of it, whose depth range lies beyond that of a cell with a sign change
-    (depths of the cell's nodes widened by the cell's chord, along which the arc runs),
-    are not searched.
+    On a polygon the first crossings have a closed form (`polygon_crossings`,
+    `polygon_shadow_times`): its row has a slot per ray, and no budget. On a curved
+    object, only rays that pass through its bounding disc beyond their source, and
+    before they surely have crossed a curve, are searched (at most `budget` of them per
+    object; the count is returned with the roots' so that an overflow is reported). A
+    curved room is met by every ray: its row is searched for all of them and has a slot
+    per ray besides the `budget` (its count is that of the roots beyond one per ray).
+    Cells of the room that cannot hold a ray's first crossing of it, whose depth range
+    lies beyond that of a cell with a sign change (depths of the cell's nodes widened by
+    the cell's chord, along which the arc runs), are not searched.
 
     On the tangency point's own curve j the ray function g(s) = cross(P - C, x_j(s) - C)
     has a double root at s = T (the ray touches the curve there). It is deflated,
@@ -625,47 +691,76 @@ def shadow_times(
             nearest = nearest.at[line].min(jnp.where(beyond, depth, jnp.inf))
         return nearest
 
-    # Where each ray surely has crossed a curve: where it crosses an edge of a polygon,
-    # enters an object's inscribed disc, or crosses the room. Objects whose bounding disc
-    # lies farther hold no first crossing and are not searched.
+    # Where each ray surely has crossed a curve: where it crosses an edge of a polygon
+    # (in closed form: a polygon's shadow times are those crossings), enters an
+    # object's inscribed disc, or crosses a curved room. Curved objects whose bounding
+    # disc lies farther hold no first crossing and are not searched.
+    straight = scene.straight()
     objects = np.arange(m - 1) if scene.room else np.arange(m)
-    inner = inscribed_radii(samples, centre, scene.straight())[objects, None]
-    miss = inner**2 * length2 - across[objects] ** 2
-    enter = (along[objects] - jnp.sqrt(jnp.maximum(miss, 0.0))) / length2
-    stop = jnp.min(jnp.where((miss > 0) & (enter > tangency.depth[None]), enter, jnp.inf), 0)
+    curved = objects[~straight[objects]]
+    inner = inscribed_radii(samples, centre, straight)[curved, None]
+    miss = inner**2 * length2 - across[curved] ** 2
+    enter = (along[curved] - jnp.sqrt(jnp.maximum(miss, 0.0))) / length2
+    stop = jnp.min(
+        jnp.where((miss > 0) & (enter > tangency.depth[None]), enter, jnp.inf), 0, initial=jnp.inf
+    )
     edges = polygon_edges(scene, samples)
-    stop = jnp.minimum(stop, polygon_crossings(edges, c0, ray, tangency.depth))
-    lines, solved, counts = [], [], []
-    if scene.room:  # the room (the last curve) for every ray
+    crossings = polygon_crossings(edges, c0, ray, tangency.depth)
+    stop = jnp.minimum(stop, crossings.depth)
+    rows, lines, solved = [], [], []  # the curved rows' searches
+    count = jnp.zeros(m, int)
+    if scene.room and not straight[-1]:  # a curved room (the last curve) for every ray
         room = np.array([m - 1])
         room_brackets, room_line, room_count = search(room, None, sources + budget, True)
+        rows.append(room)
         lines.append(room_line)
         solved.append(solve(scene.curves[-1], room_brackets, room_line, room))
-        counts.append(jnp.maximum(room_count - sources, 0))
+        count = count.at[m - 1].set(jnp.maximum(room_count[0] - sources, 0))
         stop = jnp.minimum(stop, nearest_hits(lines, solved))
-    brackets, line, count = search(objects, budget, budget, False, stop * (1 + 1e-6))
-    if scene.room:  # (the scene evaluates a row per curve: the room's is left empty)
-        padded = jax.tree.map(
-            lambda a: jnp.pad(a, [(0, 1)] + [(0, 0)] * (a.ndim - 1)),
-            (brackets._replace(count=None), line),
-        )
-        objects_solved = solve(scene, *padded, np.arange(m))
-        objects_solved = jax.tree.map(lambda a: a[:-1] if a.ndim else a, objects_solved)
-    else:
-        objects_solved = solve(scene, brackets, line, objects)
-    lines, solved, counts = [line, *lines], [objects_solved, *solved], [count, *counts]
-    count = jnp.concatenate(counts)
+    if len(curved):
+        brackets, line, curved_count = search(curved, budget, budget, False, stop * (1 + 1e-6))
+        rows.append(curved)
+        lines.append(line)
+        solved.append(solve(scene.rows(curved), brackets, line, curved))
+        count = count.at[curved].set(curved_count)
     # Each ray's first hit beyond its source, over the scene (near ties kept).
-    nearest = nearest_hits(lines, solved)
-    width = max(line.shape[-1] for line in lines)
-    t, first_hit = [], []
-    for line, (s, beyond, depth, _) in zip(lines, solved):
-        hit = beyond & (depth <= nearest[line] + 1e-9 * jnp.abs(nearest[line]))
-        pad = [(0, 0), (0, width - line.shape[-1])]
-        t.append(jnp.pad(jnp.where(hit, s, 1.0), pad, constant_values=1.0))
-        first_hit.append(jnp.pad(hit, pad))
-    settled = jnp.all(jnp.stack([done for *_, done in solved]))
-    return Roots(jnp.concatenate(t), jnp.concatenate(first_hit), count, settled)
+    nearest = jnp.minimum(crossings.depth, nearest_hits(lines, solved))
+    width = shadow_slots(scene, sources, budget)[0]
+    t = jnp.ones((m, width), ray.x.dtype)
+    first_hit = jnp.zeros((m, width), bool)
+
+    def near(depth, nearest):
+        return depth <= nearest + 1e-9 * jnp.abs(nearest)
+
+    for row, line, (s, beyond, depth, _) in zip(rows, lines, solved):
+        hit = beyond & near(depth, nearest[line])
+        t = t.at[row, : line.shape[-1]].set(jnp.where(hit, s, 1.0))
+        first_hit = first_hit.at[row, : line.shape[-1]].set(hit)
+    if edges is not None:  # a slot per ray on every polygon: its crossing, if first
+        polygons = np.flatnonzero(straight)
+        hit = tangency.valid & jnp.isfinite(crossings.depth) & near(crossings.depth, nearest)
+        hit = hit[None] & (jnp.asarray(edges.curve)[crossings.edge][None] == polygons[:, None])
+        times = polygon_shadow_times(scene, edges, camera, tangency.point, crossings)
+        t = t.at[polygons, :sources].set(jnp.where(hit, times[None], 1.0))
+        first_hit = first_hit.at[polygons, :sources].set(hit)
+    settled = jnp.all(jnp.stack([jnp.asarray(True)] + [done for *_, done in solved]))
+    return Roots(t, first_hit, count, settled)
+
+
+def shadow_slots(scene, rays: int, budget: int) -> tuple[int, int]:
+    """The width of `shadow_times`' rows for `rays` ray sources, and how many of the
+    scene's slots can hold a shadow time: a ray has one first crossing, so the
+    polygons (closed form, a slot per ray on each) hold `rays` together; a curved
+    object holds `budget`, a curved room a slot per ray besides the `budget`."""
+    straight = scene.straight()
+    curved_room = scene.room and not straight[-1]
+    curved = int((~straight).sum()) - curved_room
+    width = max(
+        rays if straight.any() else 0,
+        budget if curved else 0,
+        rays + budget if curved_room else 0,
+    )
+    return width, (rays if straight.any() else 0) + curved * budget + curved_room * (rays + budget)
 
 
 def range_function(t, args):

@@ -214,6 +214,16 @@ class Scene(eqx.Module):
             pieces[i] = count if len(corners) and corners[0] == 0 else count % max(1, len(corners))
         return pieces
 
+    def rows(self, rows: np.ndarray) -> "Scene":
+        """The curves `rows` (static indices) as a scene of objects, for evaluating those
+        rows alone: they are curves of this checked scene, so they are not checked again."""
+        if np.array_equal(rows, np.arange(len(self.curves))) and not self.room:
+            return self
+        scene = object.__new__(Scene)
+        object.__setattr__(scene, "curves", tuple(self.curves[i] for i in rows))
+        object.__setattr__(scene, "room", False)
+        return scene
+
     @property
     def conics_only(self) -> bool:
         """Whether every curve is a conic (then the events have closed forms, `_conics.py`)."""

@@ -52,9 +52,11 @@ from ._events import (
     polygon_edges,
     range_times,
     sample,
+    shadow_slots,
     shadow_times,
     silhouette_corners,
     tangency_points,
+    tangency_sources,
     tangency_times,
     wedge_edges,
     with_nearest_node,
@@ -100,12 +102,15 @@ class VisibilityOptions(eqx.Module):
       groups (of cameras, or of camera pairs for `Reconstruction`). A ray from a
       tangency point, a corner or a wedge edge casts one shadow at most, where it first
       crosses a curve beyond its source (behind that, the curve it crossed hides both
-      sides of the ray): `max_shadows` bounds the rays that pass one object's bounding
-      disc before they surely have crossed a curve (an edge of a polygon, an object's
-      inscribed disc, the room), and a room, which every ray meets, has a slot for every
-      ray besides it. On the random floors of `benchmarks/floors.py` (up to 128 cells, 64
-      objects, 64 cameras) an object holds at most 11 such rays, its own among them: this
-      bound depends on the data (a large object that many rays pass close to needs more).
+      sides of the ray). On a polygon (`PiecewiseCurve` of degree 1: walls, furniture)
+      the crossings have a closed form and every ray has a slot, so no budget applies
+      there, and a polygon has no tangency slots. On a curved object `max_shadows` bounds
+      the rays that pass its bounding disc before they surely have crossed a curve (an
+      edge of a polygon, an object's inscribed disc, a curved room), and a curved room,
+      which every ray meets, has a slot for every ray besides it. On the random floors of
+      `benchmarks/floors.py` (up to 128 cells, 64 objects, 64 cameras) an object holds at
+      most 11 such rays, its own among them: this bound depends on the data (a large
+      curved object that many rays pass close to needs more).
       Called outside any jit, `visibility`, `visible_intervals`, `optimize`, `greedy`,
       `exhaustive`, `slsqp` and the plots grow an overflowed budget and compile again,
       with a warning; inside a jit an overflow raises an error naming the option
@@ -277,12 +282,24 @@ def _real_fixed(scene: Scene, fixed: int) -> int:
     return int(scene.corners()[1].sum()) if scene.has_corners else 0
 
 
-def _unused_slots(scene: Scene, shadows: Roots, options) -> int:
-    """Of one camera's event slots over the scene, those that never hold an event: in a
-    room, every object's share of the room's slot per ray (`shadow_times`)."""
-    if not scene.room or scene.conics_only:
+def _unused_slots(scene: Scene, shadows: Roots, options, wedge: bool) -> int:
+    """Of one camera's event slots over the scene, those that never hold an event: of
+    the shadow slots (`shadow_times`), all but those that can hold a first crossing of
+    one of its rays (`shadow_slots`; `wedge`: whether the cameras have a view wedge)."""
+    if scene.conics_only:
         return 0
-    return (len(scene) - 1) * (shadows.t.shape[-1] - options.max_shadows)
+    width, capacity = shadow_slots(scene, _ray_count(scene, options, wedge), options.max_shadows)
+    assert width == shadows.t.shape[-1]
+    return len(scene) * width - capacity
+
+
+def _ray_count(scene: Scene, options, wedge: bool) -> int:
+    """The number of one camera's ray sources (`_camera_partition`): its tangency slots
+    on every curved curve (`tangency_sources`), the corners and a view wedge's two
+    edges."""
+    corners = int(scene.corners()[1].sum()) if scene.has_corners else 0
+    curved = len(scene) - int(scene.straight().sum())
+    return curved * options.max_tangents + corners + 2 * wedge
 
 
 def _flat_budget(
@@ -301,14 +318,15 @@ def _flat_budget(
 
 
 def _camera_interval_budget(
-    scene: Scene, options, events, shadows: Roots, ranges: Roots | None
+    scene: Scene, options, events, shadows: Roots, ranges: Roots | None, wedge: bool
 ) -> int:
     """The static number of one camera's intervals (of positive length, over the whole
     scene) that are tested for visibility (`_flat_budget` of its event rows, with every
-    curve's first interval kept; the arrays may be batched over cameras)."""
+    curve's first interval kept; the arrays may be batched over cameras; `wedge`: whether
+    the cameras have a view wedge)."""
     fixed = _fixed_slots(scene, events, ranges)
     kept = _real_fixed(scene, fixed) + len(scene)
-    slots, unused = events.shape[-1], _unused_slots(scene, shadows, options)
+    slots, unused = events.shape[-1], _unused_slots(scene, shadows, options, wedge)
     return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept, unused)
 
 
@@ -328,7 +346,7 @@ def _camera_partition(
         grid = with_nearest_node(scene, samples, nearest)
         tangents = tangency_times(scene, camera, grid, options.max_tangents, iters)
     points = tangency_points(scene, tangents)
-    sources = points
+    sources = tangency_sources(scene, points)
     pieces = [jnp.zeros_like(tangents.t[:, :1]), tangents.t]
     if scene.has_corners:
         sources = join_sources(sources, silhouette_corners(scene, camera, samples))
@@ -354,7 +372,9 @@ def _camera_partition(
     # `_budgets`), as one flat list of queries.
     start, end = jax.lax.stop_gradient(_intervals(events))
     m, slots = events.shape
-    tested = _camera_interval_budget(scene, options, events, shadows, ranges)
+    tested = _camera_interval_budget(
+        scene, options, events, shadows, ranges, pose.half_fov is not None
+    )
     index, filled, _ = first_true((end > start).ravel(), tested)
     curve = index // slots
     t_mid = (0.5 * (start + end)).ravel()[index]
@@ -567,7 +587,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     fixed = pieces[0].shape[1] + k * per_camera
     slots = union.shape[1]
     kept = m * pieces[0].shape[1] + k * (_real_fixed(scene, per_camera - cut) + m * cut)
-    unused = k * _unused_slots(scene, partitions.shadows, options)
+    wedge = events.poses.half_fov is not None
+    unused = k * _unused_slots(scene, partitions.shadows, options, wedge)
     budget = _flat_budget(scene, options.max_intervals, slots, fixed, kept, unused)
     starts, ends = _intervals(union)
     used_mask = jax.lax.stop_gradient(starts) < 1.0
@@ -673,8 +694,9 @@ def _budgets(scene, events: Events, options, intervals=None) -> list[Budget]:
                 "range circle crossings on one curve",
             )
         )
+    wedge = events.poses.half_fov is not None
     tested = _camera_interval_budget(
-        scene, options, partitions.events, partitions.shadows, partitions.ranges
+        scene, options, partitions.events, partitions.shadows, partitions.ranges, wedge
     )
     start, end = jax.vmap(_intervals)(partitions.events)
     count = jnp.max(fused_reduce(jnp.sum, end > start, (-1, -2)))

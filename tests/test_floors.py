@@ -20,14 +20,26 @@ POLYGONS = ("rectangle", "l_shape", "triangle")
 CURVED = ("circle", "blob", "ellipse", "rounded_rectangle")
 
 
-@pytest.mark.parametrize("cameras", [16])  # (one camera: test_polygons.py)
-def test_polygon_floor_matches_visilibity(cameras):
-    """Visible length of a random polygon floor, under jit with default options (every ray
-    casts one shadow, the room has a slot for each), against the union of VisiLibity1's
-    visibility polygons (1e-9 relative)."""
+POLYGON_FLOOR_CASES = {
+    "16 cameras, default options": (16, ocp.VisibilityOptions()),
+    # a polygon's crossings have a closed form and a slot per ray: no root budget applies
+    "4 cameras, one tangency and one shadow slot": (
+        4,
+        ocp.VisibilityOptions(max_tangents=1, max_shadows=1),
+    ),
+}
+
+
+@pytest.mark.parametrize("case", POLYGON_FLOOR_CASES)  # (one camera: test_polygons.py)
+def test_polygon_floor_matches_visilibity(case):
+    """Visible length of a random polygon floor, under jit (every ray casts one shadow,
+    each polygon has a slot for each), against the union of VisiLibity1's visibility
+    polygons (1e-9 relative)."""
+    cameras, options = POLYGON_FLOOR_CASES[case]
     scene = ocp.scenes.floor(seed=cameras, cells=10, objects=5, kinds=POLYGONS)
     positions = ocp.scenes.free_points(scene, cameras, seed=cameras)
-    value = float(jax.jit(lambda c: ocp.visibility(scene, c, ocp.VisibleLength()))(positions))
+    fn = jax.jit(lambda c: ocp.visibility(scene, c, ocp.VisibleLength(), options))
+    value = float(fn(positions))
     holes = [outline(c) for c in scene.objects]
     want = union_visible_length(outline(scene.curves[-1]), holes, np.asarray(positions))
     assert want > 0

@@ -936,7 +936,7 @@ def camera_events(scene, camera):
     cam = Vec(camera[0], camera[1])
     tangents = tangency_times(scene, cam, samples)
     points = _events.tangency_points(scene, tangents)
-    sources = points
+    sources = _events.tangency_sources(scene, points)
     if scene.has_corners:
         sources = _events.join_sources(sources, _events.silhouette_corners(scene, cam, samples))
     probes = _events.grazing_probes(cam, samples, tangents, points)
@@ -1137,44 +1137,59 @@ def test_inscribed_discs(case):
 
 
 BLOCKS = {
-    # a polygon stops a ray where it crosses an edge, a curve inside its inscribed disc
-    "square block": ocp.PiecewiseCurve.polygon([(2.0, -1.0), (4.0, -1.0), (4.0, 1.0), (2.0, 1.0)]),
-    "round block": ocp.Circle([3.0, 0.0], 1.0),
+    # a polygon stops a ray where it crosses an edge, a curve inside its inscribed disc;
+    # the counts of the curved objects' searches (a polygon's crossings are closed forms)
+    "square block": (
+        ocp.PiecewiseCurve.polygon([(2.0, -1.0), (4.0, -1.0), (4.0, 1.0), (2.0, 1.0)]),
+        [0, 0, 2],
+    ),
+    "round block": (ocp.Circle([3.0, 0.0], 1.0), [0, 4, 2]),
 }
 
 
 @pytest.mark.parametrize("block", BLOCKS)
 def test_rays_stopped_by_a_nearer_object_are_not_searched_behind_it(block):
     """From the origin, a small square's silhouette rays (at +-3.2 degrees) cross the
-    block around (3, 0) and then pass the bounding disc of the square at x in [8, 9]
-    behind it. They stop at the block, so the far square's search holds only its own
-    two silhouette corners' rays (each object's own rays pass its disc; the block's
+    block around (3, 0) and then pass the bounding disc of the circle at x in [8, 9]
+    behind it. They stop at the block, so the far circle's search holds only its own
+    two tangency points' rays (each object's own rays pass its disc; a round block's
     also holds the small square's)."""
     square = ocp.PiecewiseCurve.polygon([(0.9, -0.05), (1.0, -0.05), (1.0, 0.05), (0.9, 0.05)])
-    far = ocp.PiecewiseCurve.polygon([(8.0, -0.5), (9.0, -0.5), (9.0, 0.5), (8.0, 0.5)])
-    scene = ocp.Scene([square, BLOCKS[block], far])
+    far = ocp.Circle([8.5, 0.0], 0.5)
+    curve, counts = BLOCKS[block]
+    scene = ocp.Scene([square, curve, far])
     _, sources, shadows = jax.jit(camera_events)(scene, jnp.zeros(2))
     assert int(jnp.sum(sources.valid & (sources.curve == 2))) == 2
-    np.testing.assert_array_equal(np.asarray(shadows.count), [2, 4, 2])
+    np.testing.assert_array_equal(np.asarray(shadows.count), counts)
 
 
 def test_polygon_crossings_are_the_first_crossings_of_a_polygon_floor():
     """The closed-form crossings of rays with a floor's walls and polygon furniture are
     each ray's first crossing beyond its source, as the NumPy reference's polylines give
-    it (rays that only touch a vertex are not stopped by it)."""
+    it (rays that only touch a vertex are not stopped by it), and the shadow times on
+    their edges are the points crossed, on the curves crossed."""
     scene = ocp.scenes.floor(seed=11, cells=10, objects=5, kinds=("rectangle", "l_shape", "triangle"))
     camera = np.asarray(ocp.scenes.free_points(scene, 1, seed=11)[0])
     _, sources, _ = jax.jit(camera_events)(scene, jnp.asarray(camera))
     samples = _events.sample(scene, grid_cells(scene))
     ray = Vec(sources.point.x - camera[0], sources.point.y - camera[1])
     edges = _events.polygon_edges(scene, samples)
-    got = np.asarray(_events.polygon_crossings(edges, Vec(*camera), ray, sources.depth))
+    crossings = _events.polygon_crossings(edges, Vec(*camera), ray, sources.depth)
+    got = np.asarray(crossings.depth)
     valid = np.asarray(sources.valid)
     rays = np.asarray(sources.point.stack())[valid] - camera
     hits = _first_crossings(H.to_reference(scene), camera, rays + camera)
     want = [np.inf if hit is None else (hit[1] - camera) @ d / (d @ d) for hit, d in zip(hits, rays)]
     assert np.isfinite(got[valid]).sum() >= 10
     np.testing.assert_allclose(got[valid], want, rtol=1e-9)
+
+    t = _events.polygon_shadow_times(scene, edges, Vec(*camera), sources.point, crossings)
+    curve = edges.curve[np.asarray(crossings.edge)][valid]
+    found = np.isfinite(got[valid])
+    x = np.asarray(scene.components_at(jnp.asarray(curve), t[valid])[0].stack())
+    np.testing.assert_array_equal(curve[found], [hit[0] for hit in hits if hit is not None])
+    np.testing.assert_allclose(x[found], [hit[1] for hit in hits if hit is not None], atol=1e-9)
+    assert np.all(np.asarray(t)[valid][~found] == 1.0)
 
 
 def test_edges_cross_lines_of_sight_as_segments_do():
