@@ -129,8 +129,10 @@ class VisibilityOptions(eqx.Module):
     - `max_camera_intervals`: per camera, the intervals of its own partition (of
       positive length, over the whole scene) that are tested for visibility (the test of
       every query point against every curve is the costliest step of scenes with many
-      objects); None (default) takes every curve's corners and first interval plus half
-      of every curve's root slots (`fit_options` sets it to what given cameras need).
+      objects); None (default) takes every interval a camera can have within the root
+      budgets above: one per curve and one after each corner, tangency slot, ray (a ray
+      has one first crossing) and range slot, so it holds wherever they do
+      (`fit_options` sets it to what given cameras need).
     - `quadrature`: Gauss-Legendre nodes per interval; intervals are also cut at each
       curve's panel `breakpoints`. 16 nodes give ~1e-12 relative error for cameras at
       a fair distance; a camera very close to a curve makes q = cos^2 nearly singular
@@ -321,13 +323,24 @@ def _camera_interval_budget(
     scene: Scene, options, events, shadows: Roots, ranges: Roots | None, wedge: bool
 ) -> int:
     """The static number of one camera's intervals (of positive length, over the whole
-    scene) that are tested for visibility (`_flat_budget` of its event rows, with every
-    curve's first interval kept; the arrays may be batched over cameras; `wedge`: whether
-    the cameras have a view wedge)."""
+    scene) that are tested for visibility (the arrays may be batched over cameras;
+    `wedge`: whether the cameras have a view wedge): `max_camera_intervals`, or by
+    default every interval a camera can have within its root budgets, one on every curve
+    before its first event and one after each event: the corners, the tangency slots of
+    the curved curves, one first crossing per ray (`shadow_slots`; one more per curved
+    object, where a ray grazes it and its two crossings tie) and the range slots. For a
+    scene of conics, `_flat_budget` of its closed-form slots."""
     fixed = _fixed_slots(scene, events, ranges)
-    kept = _real_fixed(scene, fixed) + len(scene)
     slots, unused = events.shape[-1], _unused_slots(scene, shadows, options, wedge)
-    return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept, unused)
+    if scene.conics_only or options.max_camera_intervals is not None:
+        kept = _real_fixed(scene, fixed) + len(scene)
+        return _flat_budget(scene, options.max_camera_intervals, slots, fixed, kept, unused)
+    m, rays = len(scene), _ray_count(scene, options, wedge)
+    curved = m - int(scene.straight().sum())
+    crossings = min(rays + curved, shadow_slots(scene, rays, options.max_shadows)[1])
+    in_range = 0 if ranges is None else m * ranges.t.shape[-1]
+    every = m + _real_fixed(scene, fixed) + curved * options.max_tangents + crossings + in_range
+    return min(m * slots - unused, every)
 
 
 def _camera_partition(
