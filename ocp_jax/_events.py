@@ -180,8 +180,9 @@ def tangency_times(scene, camera: Vec, grid: Samples, budget: int, iterations: i
     curved = np.flatnonzero(~scene.straight())
     m = len(scene)
     if not len(curved):
-        empty = jnp.ones((m, budget), grid.x.x.dtype)
-        return Roots(empty, empty < 0, jnp.zeros(m, int), jnp.asarray(True))
+        padding = jnp.ones((m, budget), grid.x.x.dtype)
+        none = jnp.zeros((m, budget), bool)
+        return Roots(padding, none, jnp.zeros(m, int), jnp.asarray(True))
     if len(curved) < m:
         grid = jax.tree.map(lambda a: a[curved], grid)
     sight = sub(grid.x, jax.lax.stop_gradient(camera))
