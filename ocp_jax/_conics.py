@@ -30,6 +30,8 @@ The decisions have closed forms too, so that such a scene needs no grid of sampl
   towards raising).
 """
 
+from typing import NamedTuple
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -182,14 +184,30 @@ def conic_distances(
     return jnp.abs(radial - 1.0) * ratio, outward, t
 
 
-def conic_occluded(frames: UnitFrame, camera: Vec, query: Vec, curve: Array) -> Array:
+class ConicOccluders(NamedTuple):
+    """The conics of a scene with other curves, whose occlusions are tested in closed form."""
+
+    frames: UnitFrame  # arrays (c,)
+    curve: np.ndarray  # (c,) static: the scene's curve of each frame
+
+
+def conic_occluders(scene) -> ConicOccluders | None:
+    """The scene's conics (None where it has none)."""
+    curve = np.flatnonzero(scene.conic())
+    return ConicOccluders(scene.rows(curve).conic_frames(), curve) if len(curve) else None
+
+
+def conic_occluded(
+    frames: UnitFrame, camera: Vec, query: Vec, curve: Array, rows: np.ndarray | None = None
+) -> Array:
     """Whether another conic crosses the open segment from `camera` to each query point
-    (arrays (q,), point k on conic `curve[k]`): a root lambda in (0, 1) of
-    |C' + lambda M_j (P - C)|^2 = 1 for some conic j != curve[k]."""
-    m = frames.center.shape[0]
+    (arrays (q,), point k on curve `curve[k]`): a root lambda in (0, 1) of
+    |C' + lambda M_j (P - C)|^2 = 1 for some conic j != curve[k]. `rows`: the scene's
+    curve of each frame (static; default: frame j is curve j)."""
+    rows = np.arange(frames.center.shape[0]) if rows is None else rows
     origin = _to_unit(frames, camera.map(lambda a: a[None, None]), shift=True)
     direction = _to_unit(frames, sub(query, camera).map(lambda a: a[None]), shift=False)
     real, _, (near, far) = _unit_circle_crossings(origin, direction)  # (m_j, q)
     between = ((near > 0.0) & (near < 1.0)) | ((far > 0.0) & (far < 1.0))
-    crossing = real & between & (jnp.arange(m)[:, None] != curve[None])
+    crossing = real & between & (rows[:, None] != curve[None])
     return jnp.any(crossing, axis=0)

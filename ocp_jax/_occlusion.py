@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from ._conics import ConicOccluders, conic_occluded
 from ._events import GrazingProbes, PolygonEdges, Samples, grid_cell
 from ._materialize import computed_on_one_thread
 from ._reductions import fused_reduce
@@ -165,6 +166,7 @@ def visible_points(
     probes: GrazingProbes,
     pieces: Int[Array, "m n"] | None = None,
     edges: PolygonEdges | None = None,
+    conics: ConicOccluders | None = None,
     one_thread: bool = False,
 ) -> Bool[Array, " q"]:
     """chi(t_mid[k], camera) for query points x_mid, x'_mid (arrays (q,)), point k on curve
@@ -178,10 +180,15 @@ def visible_points(
     The polygons' `edges` (`_events.polygon_edges`) are tested whole, not cell by cell:
     on a straight edge g is affine, so the edge crosses the segment (C, m) iff g changes
     sign between its ends at a depth in (0, |d|^2), the test of its cells taken at once.
-    The grid's rows of the polygons are then left out of the test of other curves."""
+    The grid's rows of the polygons are then left out of the test of other curves, and so
+    are those of the `conics` (`_conics.conic_occluders`), whose crossings of the segment
+    are the roots of a quadratic (`conic_occluded`)."""
     m = grid.t.shape[0]
-    # The rows tested on the grid: every curve but the polygons whose edges are given.
-    rows = np.arange(m) if edges is None else np.setdiff1d(np.arange(m), edges.curve)
+    # The rows tested on the grid: every curve but the polygons and conics given.
+    rows = np.arange(m)
+    for closed_form in (edges, conics):
+        if closed_form is not None:
+            rows = np.setdiff1d(rows, closed_form.curve)
     h = jnp.diff(grid.t)  # (m, N + 1)
     d = sub(x_mid, camera)  # (q,)
     reach = dot(d, d)
@@ -219,12 +226,14 @@ def visible_points(
             _crosses_edges(d, reach, sub(edges.start, camera), sub(edges.end, camera)) & ~own_edge,
             -1,
         )
-    if m > 1:
-        on_other = jax.tree.map(lambda a: a[None], probes)  # (1, m, r)
+    if conics is not None:
+        blocked = blocked | conic_occluded(conics.frames, camera, x_mid, curve, conics.curve)
+    if m > 1 and len(rows):
+        on_other = jax.tree.map(lambda a: a[None, rows], probes)  # (1, n, r)
         blocked = blocked | fused_reduce(
             jnp.any,
             on_other.valid
-            & ~own_row[..., None]
+            & ~own_row[:, rows, None]
             & _grazing(
                 cross(dd, on_other.sight),
                 cross(dd, on_other.start),

@@ -224,10 +224,15 @@ class Scene(eqx.Module):
         object.__setattr__(scene, "room", False)
         return scene
 
+    def conic(self) -> np.ndarray:
+        """Static (m,) array: which curves are conics (whose crossings of a line have
+        closed forms, `_conics.py`)."""
+        return np.array([isinstance(c, AbstractConic) for c in self.curves])
+
     @property
     def conics_only(self) -> bool:
         """Whether every curve is a conic (then the events have closed forms, `_conics.py`)."""
-        return all(isinstance(c, AbstractConic) for c in self.curves)
+        return bool(self.conic().all())
 
     def conic_frames(self) -> UnitFrame:
         """Every curve's `AbstractConic.unit_frame`, stacked (a scene of conics only)."""

@@ -36,6 +36,7 @@ from ._conics import (
     conic_distances,
     conic_extent,
     conic_occluded,
+    conic_occluders,
     conic_orientation,
     conic_shadow_times,
     conic_tangency_times,
@@ -405,8 +406,20 @@ def _camera_partition(
             smooth = grid_pieces(scene.pieces(samples.t.shape[0] - 1), grid)
         probes = grazing_probes(camera, grid, tangents, points)  # on the camera's grid
         edges = polygon_edges(scene, samples)
+        occluders = conic_occluders(jax.lax.stop_gradient(scene))
         visible = visible_points(
-            seen_from, grid, sense, curve, t_mid, x_mid, dx_mid, probes, smooth, edges, one_thread
+            seen_from,
+            grid,
+            sense,
+            curve,
+            t_mid,
+            x_mid,
+            dx_mid,
+            probes,
+            smooth,
+            edges,
+            occluders,
+            one_thread,
         )
     visible = visible & in_view(frozen, x_mid) & filled
     # (slots past the count drop out: their index is out of range)
