@@ -431,9 +431,9 @@ def _camera_partition(
 
 
 def _integrand(t, args, one_thread: bool):
-    """max over the camera groups that see the interval of q(x(t), x'(t), G) ||x'(t)||,
-    for t of shape (e, g) on the curves `curve` (e,) (the groups' visibility `seen` has
-    shape (G, e))."""
+    """q(x(t), x'(t), G) ||x'(t)|| of each interval's best group G (`_best_group`), zero
+    where it does not see the interval, for t of shape (e, g) on the curves `curve` (e,)
+    (the group's cameras: `Vec`s of shape (e, 1); whether it sees: `seen`, shape (e,))."""
     scene, curve, *rest = args
     if one_thread:
         # x, x' and q in one kernel: the four coordinates share the curve's powers of t
@@ -443,7 +443,6 @@ def _integrand(t, args, one_thread: bool):
             return _integrand_at(*scene.components_at(curve, t)[:2], *rest)
 
         return computed_on_one_thread(integrand, (scene, curve, t, rest), scene)
-    # With several cameras x and x' are stored (computed once, not in every group's q).
     rows = materialize(scene.point_and_tangent_at(curve, t), scene)
     return _integrand_at(Vec(rows[0], rows[1]), Vec(rows[2], rows[3]), *rest)
 
@@ -455,18 +454,46 @@ def _stored_points(scene: Scene, t) -> tuple[Vec, Vec]:
     return Vec(rows[:, 0], rows[:, 1]), Vec(rows[:, 2], rows[:, 3])
 
 
-def _integrand_at(x: Vec, dx: Vec, group, objective, seen):
+def _integrand_at(x: Vec, dx: Vec, cameras, objective, seen):
     """The integrand from the curve's points x and derivatives x' (see `_integrand`)."""
+    return jnp.where(seen[..., None], objective.evaluate(x, dx, *cameras), 0.0) * norm(dx)
 
-    # A maximum of G terms, not a reduction over a stacked (G, m, e, g) array: XLA's CPU
-    # backend runs such a reduction over a short leading axis (and those of its
-    # derivative) as kernels of their own, several times slower than the elementwise
-    # maximum fused into the integrand.
-    def seen_by(g):  # q of group g where it sees the interval, else 0
-        cameras = [c.map(lambda a: a[g]) for c in group]
-        return jnp.where(seen[g, ..., None], objective.evaluate(x, dx, *cameras), 0.0)
 
-    return functools.reduce(jnp.maximum, map(seen_by, range(seen.shape[0]))) * norm(dx)
+def _best_group(scene: Scene, curve, start, end, members, objective, seen):
+    """The group whose q is largest on each interval among those that see it (Eq. 3.15's
+    max), decided at its midpoint (a decision: no derivative). Between consecutive
+    events no two groups' q cross (their crossovers are events), so one group is the
+    best on the whole interval and the quadrature evaluates its q alone: G + g
+    evaluations of q per interval of g nodes, not G g.
+
+    **Arguments:**
+
+    - `members`: the groups' cameras, one `Vec` of shape (G,) per member.
+    - `seen`: (G, e), whether each group sees each interval.
+
+    **Returns:** the best group's members, `Vec`s of shape (e, 1) (or (1, 1) for one
+    group), and whether it sees each interval, (e,).
+    """
+    if seen.shape[0] == 1:
+        return tuple(c.map(lambda a: a[:, None]) for c in members), seen[0]
+    frozen_scene, middle, frozen_members, frozen_objective = jax.lax.stop_gradient(
+        (scene, 0.5 * (start + end), members, objective)
+    )
+    rows = frozen_scene.point_and_tangent_at(curve, middle)
+    x, dx = Vec(rows[0], rows[1]), Vec(rows[2], rows[3])
+
+    # A maximum of G terms, not a reduction over a stacked (G, e) array: XLA's CPU
+    # backend runs such a reduction over a short leading axis as kernels of its own.
+    def seen_by(g):  # (q of group g where it sees the interval, else -1; g)
+        q = frozen_objective.evaluate(x, dx, *(c.map(lambda a: a[g]) for c in frozen_members))
+        return jnp.where(seen[g], q, -1.0), jnp.full(curve.shape, g)
+
+    def larger(a, b):
+        return jnp.where(b[0] > a[0], b[0], a[0]), jnp.where(b[0] > a[0], b[1], a[1])
+
+    best = functools.reduce(larger, map(seen_by, range(seen.shape[0])))[1]
+    chosen = tuple(c.map(lambda a: a[best][:, None]) for c in members)
+    return chosen, jnp.take_along_axis(seen, best[None], 0)[0]
 
 
 def _closest_points(scene, cameras: Vec, samples: Samples, sense):
@@ -637,7 +664,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, e)
 
     members = group_members(events.cameras, events.groups)
-    args = (scene, curve, members, objective, seen_by_group)
+    chosen, seen = _best_group(scene, curve, start, end, members, objective, seen_by_group)
+    args = (scene, curve, chosen, objective, seen)
     integrand = functools.partial(_integrand, one_thread=_one_thread(events.cameras, 1))
     integrals = gauss_legendre(integrand, start, end, args, options.quadrature)  # (e,)
     value = fused_reduce(jnp.sum, integrals, None)
