@@ -10,12 +10,13 @@ x_i(t). The computation (Sec. 5.2): the events of every camera (tangency and sha
 the curves' breakpoints, and crossovers of the groups' q) cut each curve into intervals
 on which the integrand is smooth. The continuous viewability matrix V (Eq. 5.35) says, per
 interval and camera, whether the camera sees it: one test per interval of each camera's
-own partition. Gauss-Legendre quadrature on every interval then gives Q; since the
-interval ends are differentiable functions of the cameras and the scene (implicit-function
-JVPs), reverse- or forward-mode autodiff through the quadrature is exactly the Leibniz
-rule of Eq. 5.9. (Cuts where the integrand is continuous, at crossovers and at the points
-nearest to the cameras, carry no derivative: the Leibniz terms of the two intervals that
-meet there cancel.)
+own partition. On each interval one group has the largest q among those that see it (the
+crossovers are cuts), decided at its midpoint. Gauss-Legendre quadrature of that group's
+q on every interval then gives Q; since the interval ends are differentiable functions of
+the cameras and the scene (implicit-function JVPs), reverse- or forward-mode autodiff
+through the quadrature is exactly the Leibniz rule of Eq. 5.9. (Cuts where the integrand
+is continuous, at crossovers and at the points nearest to the cameras, carry no
+derivative: the Leibniz terms of the two intervals that meet there cancel.)
 """
 
 import dataclasses
