@@ -485,14 +485,15 @@ def _best_group(scene: Scene, curve, start, end, members, objective, seen):
 
     # A maximum of G terms, not a reduction over a stacked (G, e) array: XLA's CPU
     # backend runs such a reduction over a short leading axis as kernels of its own.
-    def seen_by(g):  # (q of group g where it sees the interval, else -1; g)
+    def seen_by(g):  # (chi q of group g, whether it sees the interval, g)
         q = frozen_objective.evaluate(x, dx, *(c.map(lambda a: a[g]) for c in frozen_members))
-        return jnp.where(seen[g], q, -1.0), jnp.full(curve.shape, g)
+        return jnp.where(seen[g], q, 0.0), seen[g], jnp.full(curve.shape, g)
 
-    def larger(a, b):
-        return jnp.where(b[0] > a[0], b[0], a[0]), jnp.where(b[0] > a[0], b[1], a[1])
+    def larger(a, b):  # the larger chi q; in a tie, a group that sees the interval
+        better = (b[0] > a[0]) | ((b[0] == a[0]) & b[1] & ~a[1])
+        return tuple(jnp.where(better, v, u) for u, v in zip(a, b))
 
-    best = functools.reduce(larger, map(seen_by, range(seen.shape[0])))[1]
+    best = functools.reduce(larger, map(seen_by, range(seen.shape[0])))[2]
     chosen = tuple(c.map(lambda a: a[best][:, None]) for c in members)
     return chosen, jnp.take_along_axis(seen, best[None], 0)[0]
 

@@ -75,6 +75,17 @@ def test_coverage_closed_forms():
     assert abs(ocp.visibility(circle, triple, ocp.Coverage(1)) - 2 * math.pi) < 1e-13
 
 
+def test_negative_q_is_maximised_with_the_unseen_groups_zero():
+    """Eq. 3.15's max runs over chi q, which is 0 for a camera that does not see the
+    point: for q = -1 and two cameras psi apart at distance d from a unit circle, Q is
+    minus the arc that both see, 2 acos(1/d) - psi (where one sees, the other's 0 wins)."""
+    circle = H.circle_scene()
+    d, psi = 3.0, 0.7
+    pair = jnp.array([[d, 0.0], [d * math.cos(psi), d * math.sin(psi)]])
+    value = ocp.visibility(circle, pair, lambda point, tangent, camera: -jnp.ones(()))
+    assert abs(value + (2 * math.acos(1 / d) - psi)) < 1e-13
+
+
 def test_reconstruction_local_objective():
     """q = 1 / (1 + (A / area)^2) with the error region A = delta^2 d1 d2 / sin(theta) of
     two wedges of angle delta: against the quadrilateral cut out by the four rays, built
