@@ -197,17 +197,14 @@ def conic_occluders(scene) -> ConicOccluders | None:
     return ConicOccluders(scene.rows(curve).conic_frames(), curve) if len(curve) else None
 
 
-def conic_occluded(
-    frames: UnitFrame, camera: Vec, query: Vec, curve: Array, rows: np.ndarray | None = None
-) -> Array:
+def conic_occluded(occluders: ConicOccluders, camera: Vec, query: Vec, curve: Array) -> Array:
     """Whether another conic crosses the open segment from `camera` to each query point
     (arrays (q,), point k on curve `curve[k]`): a root lambda in (0, 1) of
-    |C' + lambda M_j (P - C)|^2 = 1 for some conic j != curve[k]. `rows`: the scene's
-    curve of each frame (static; default: frame j is curve j)."""
-    rows = np.arange(frames.center.shape[0]) if rows is None else rows
+    |C' + lambda M_j (P - C)|^2 = 1 for some conic j != curve[k]."""
+    frames = occluders.frames
     origin = _to_unit(frames, camera.map(lambda a: a[None, None]), shift=True)
     direction = _to_unit(frames, sub(query, camera).map(lambda a: a[None]), shift=False)
     real, _, (near, far) = _unit_circle_crossings(origin, direction)  # (m_j, q)
     between = ((near > 0.0) & (near < 1.0)) | ((far > 0.0) & (far < 1.0))
-    crossing = real & between & (rows[:, None] != curve[None])
+    crossing = real & between & (occluders.curve[:, None] != curve[None])
     return jnp.any(crossing, axis=0)

@@ -227,7 +227,7 @@ def visible_points(
             -1,
         )
     if conics is not None:
-        blocked = blocked | conic_occluded(conics.frames, camera, x_mid, curve, conics.curve)
+        blocked = blocked | conic_occluded(conics, camera, x_mid, curve)
     if m > 1 and len(rows):
         on_other = jax.tree.map(lambda a: a[None, rows], probes)  # (1, n, r)
         blocked = blocked | fused_reduce(

@@ -399,7 +399,8 @@ def _camera_partition(
     )
     seen_from = Vec.of(frozen.position)
     if conics is not None:
-        blocked = conic_occluded(jax.lax.stop_gradient(conics), seen_from, x_mid, curve)
+        occluders = conic_occluders(jax.lax.stop_gradient(scene))
+        blocked = conic_occluded(occluders, seen_from, x_mid, curve)
         visible = facing(seen_from, sense[curve], x_mid, dx_mid) & ~blocked
     else:
         smooth = None  # the smooth piece of each cell of the camera's grid, for corners

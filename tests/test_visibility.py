@@ -1423,7 +1423,10 @@ def conic_decisions():
             (_conics.conic_extent(frames)[0], _conics.conic_orientation(frames) * scene.sides()),
             _occlusion.facing(cam, sense[:, None], x, dx)
             & ~_conics.conic_occluded(
-                frames, cam, x.map(jnp.ravel), jnp.repeat(jnp.arange(t.shape[0]), t.shape[1])
+                _conics.conic_occluders(scene),
+                cam,
+                x.map(jnp.ravel),
+                jnp.repeat(jnp.arange(t.shape[0]), t.shape[1]),
             ).reshape(t.shape),
         )
         return closed, grid, _conics.conic_extent(frames)[1]
