@@ -127,15 +127,18 @@ def continuation(quick: bool):
         starts = placement.sample(jax.random.key(0), 2, n_starts)
         exact = ocp.Foreshortened()
         clock = time.perf_counter()
-        alone = ocp.optimize(scene, exact, placement, 2, starts=starts, max_steps=3 * stage_steps)
+        solver = ocp.MultiStart(starts=starts, max_steps=3 * stage_steps)
+        alone = ocp.place(scene, exact, placement, 2, solver=solver)
         alone_seconds = time.perf_counter() - clock
         clock = time.perf_counter()
         params, evaluations = starts, 0
         for width in (0.1, 0.03):
             smooth = ocp.Smoothed(exact, width, nodes=nodes)
-            stage = ocp.optimize(scene, smooth, placement, 2, starts=params, max_steps=stage_steps)
+            solver = ocp.MultiStart(starts=params, max_steps=stage_steps)
+            stage = ocp.place(scene, smooth, placement, 2, solver=solver)
             params, evaluations = stage.paths[-1], evaluations + stage.num_evaluations
-        final = ocp.optimize(scene, exact, placement, 2, starts=params, max_steps=stage_steps)
+        solver = ocp.MultiStart(starts=params, max_steps=stage_steps)
+        final = ocp.place(scene, exact, placement, 2, solver=solver)
         continued_seconds = time.perf_counter() - clock
         evaluations += final.num_evaluations
         values = {

@@ -31,12 +31,12 @@ OBJECTIVE = ocp.Foreshortened()
 MATCH = 1e-6  # "matches greedy": within this relative tolerance
 
 
-def warm(fn, *args, **kwargs):
-    """Run once to compile, then again to time: the second result."""
-    fn(*args, **kwargs)
+def warm(solver, k: int):
+    """Place k cameras once to compile, then again to time: the second solution."""
+    ocp.place(SCENE, OBJECTIVE, PLACEMENT, k, solver=solver)
     start = time.perf_counter()
-    result = fn(*args, **kwargs)
-    return result, time.perf_counter() - start
+    solution = ocp.place(SCENE, OBJECTIVE, PLACEMENT, k, solver=solver)
+    return solution, time.perf_counter() - start
 
 
 def corner_starts(k: int) -> jnp.ndarray:
@@ -48,12 +48,12 @@ def corner_starts(k: int) -> jnp.ndarray:
 
 def rows_for(k: int):
     rows = []  # (method, evaluations, seconds, Q)
-    greedy, t = warm(ocp.greedy, SCENE, OBJECTIVE, PLACEMENT, k)
+    greedy, t = warm(ocp.Greedy(), k)
     rows.append(("greedy (512 candidates)", greedy.num_evaluations, t, float(greedy.value)))
     if k <= 2:
-        full, t = warm(ocp.exhaustive, SCENE, OBJECTIVE, PLACEMENT, k) if k == 2 else (greedy, t)
+        full, t = warm(ocp.Exhaustive(), k) if k == 2 else (greedy, t)
         rows.append(("exhaustive (512 candidates)", full.num_evaluations, t, float(full.value)))
-    corners, t = warm(ocp.optimize, SCENE, OBJECTIVE, PLACEMENT, k, starts=corner_starts(k))
+    corners, t = warm(ocp.MultiStart(starts=corner_starts(k)), k)
     for j in range(4):
         rows.append(
             (
@@ -66,13 +66,13 @@ def rows_for(k: int):
     rows.append(
         ("BFGS, the 4 corner starts batched", corners.num_evaluations, t, float(corners.value))
     )
-    slsqp, t = warm(ocp.slsqp, SCENE, OBJECTIVE, PLACEMENT, k, starts=corner_starts(k))
+    slsqp, t = warm(ocp.SLSQP(starts=corner_starts(k)), k)
     rows.append(
         ("SLSQP (scipy), the 4 corner starts", slsqp.num_evaluations, t, float(slsqp.value))
     )
     multi = {}
     for n in (16, 64):
-        multi[n], t = warm(ocp.optimize, SCENE, OBJECTIVE, PLACEMENT, k, n_starts=n)
+        multi[n], t = warm(ocp.MultiStart(n_starts=n), k)
         rows.append(
             (f"BFGS multi-start, {n} starts", multi[n].num_evaluations, t, float(multi[n].value))
         )
@@ -110,7 +110,8 @@ def main():
             if len(hit):
                 s, ev, _ = history[hit[0]]
                 print(
-                    f"      matches greedy's Q (to {MATCH:g}) after {s:.3f} s, {int(ev)} evaluations"
+                    f"      matches greedy's Q (to {MATCH:g}) after {s:.3f} s, "
+                    f"{int(ev)} evaluations"
                 )
             else:
                 print(f"      never matches greedy's Q (to {MATCH:g})")

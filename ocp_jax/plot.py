@@ -10,18 +10,20 @@ import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
+from matplotlib.colors import Normalize
+from matplotlib.lines import Line2D
 
-from ._baselines import _values_of_sets
-from ._camera import Camera
-from ._objectives import Foreshortened, as_local_objective
-from ._optimize import OptimizeResult
-from ._placement import AbstractBoundary, AbstractPlacement, DirectionalPlacement, Region
-from ._scene import Scene
-from ._visibility import VisibilityOptions, visible_intervals
+from ._geometry.camera import Camera
+from ._geometry.scene import Scene
+from ._objectives.local import Foreshortened, as_local_objective
+from ._placement.placement import AbstractBoundary, AbstractPlacement, DirectionalPlacement, Region
+from ._solvers.discrete import values_of_sets
+from ._solvers.problem import Solution
+from ._visibility.visibility import VisibilityOptions, visible_intervals
 
 __all__ = ["CAMERA_COLOURS", "plot_landscape", "plot_optimization", "plot_scene"]
 
-CAMERA_COLOURS = plt.get_cmap("tab10").colors
+CAMERA_COLOURS = tuple(plt.get_cmap("tab10")(i) for i in range(10))
 OBJECT_COLOUR = "0.65"
 SHARED_COLOUR = "black"
 
@@ -93,11 +95,13 @@ def plot_scene(
     """The objects, the placement set, the cameras and what each sees.
 
     Each camera's seen arcs are drawn thick in its colour; arcs seen by two or more
-    cameras get a thin black line along their middle. With `events=True` also the
-    occlusion events (the thesis's Figs. 3.1 and 5.1): tangency points (circles) with
-    their lines of sight, and shadow points (crosses) with the rays that reach them.
+    cameras get a thin black line along their middle; what no camera sees stays grey.
+    With `events=True` also the occlusion events (the thesis's Figs. 3.1 and 5.1):
+    tangency points (circles) with their lines of sight, and shadow points (crosses)
+    with the rays that reach them. A legend says which is which.
 
     **Arguments:**
+
     - `scene`; `cameras`: positions (k, 2), a `Camera` (its view wedges are drawn
       dashed) or None; `placement`: drawn dashed if given.
     - `events`: draw the occlusion events; `resolution`: points per curve.
@@ -137,13 +141,43 @@ def plot_scene(
             ax.add_collection(
                 LineCollection(shared, colors=[SHARED_COLOUR], linewidths=1, zorder=4)
             )
+    _legend(ax, 0 if cameras is None else len(cameras), placement is not None, events)
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
     ax.set_aspect("equal")
     ax.autoscale_view()
     return ax
 
 
+def _legend(ax, n_cameras: int, placement: bool, events: bool) -> None:
+    """What the colours and line styles of `plot_scene` mean, outside the axes."""
+    entries = [Line2D([], [], color=OBJECT_COLOUR, linewidth=1.5, label="unseen")]
+    for c in range(min(n_cameras, len(CAMERA_COLOURS))):
+        colour = CAMERA_COLOURS[c]
+        entries.append(
+            Line2D(
+                [],
+                [],
+                color=colour,
+                linewidth=4,
+                marker="o",
+                markeredgecolor="black",
+                label=f"camera {c + 1} and what it sees",
+            )
+        )
+    if n_cameras > 1:
+        entries.append(Line2D([], [], color=SHARED_COLOUR, linewidth=1, label="seen by 2 or more"))
+    if placement:
+        entries.append(Line2D([], [], color="0.3", linestyle="--", linewidth=1, label="placement"))
+    if events:
+        entries.append(Line2D([], [], color="0.3", marker="o", linestyle="-", label="tangency"))
+        entries.append(Line2D([], [], color="0.3", marker="x", linestyle=":", label="shadow"))
+    ax.legend(handles=entries, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8)
+
+
 def _draw_wedge(ax, points, pose: Camera, colour):
     """The view wedge's edges, as far as the range (or the scene's extent) reaches."""
+    assert pose.half_fov is not None  # (drawn for cameras with a wedge only)
     extent = np.ptp(np.concatenate(points), axis=0).max()
     reach = float(pose.range) if pose.range is not None else extent
     for side in (1.0, -1.0):
@@ -172,7 +206,7 @@ def plot_landscape(
     index: int = 0,
     objective=Foreshortened(),
     *,
-    result: OptimizeResult | None = None,
+    result: Solution | None = None,
     resolution: int = 256,
     ax=None,
     options: VisibilityOptions = VisibilityOptions(),
@@ -185,8 +219,10 @@ def plot_landscape(
     position of camera `index` in `result` is starred.
 
     **Arguments:**
+
     - `scene`, `placement`; `cameras` (k, 2): the fixed cameras (None: one camera).
-    - `index`: which camera moves; `objective`: q; `result`: an `optimize` result to mark.
+    - `index`: which camera moves; `objective`: q; `result`: a `Solution` of
+      `ocp.place` to mark.
     - `resolution`: samples along the boundary, or per axis of the grid.
 
     **Returns:** the Axes.
@@ -208,7 +244,7 @@ def plot_landscape(
     positions = np.asarray(placement.cameras(params))
     sets = np.repeat(fixed[None], len(positions), 0)
     sets[:, index] = positions
-    values, _ = _values_of_sets(scene, objective, options, sets, 512)
+    values, _ = values_of_sets(scene, objective, options, sets, 512)
     values = np.where(np.isfinite(values), values, np.nan)  # -inf: undefined
     if boundary:
         s = np.asarray(params[:, 0])
@@ -216,7 +252,7 @@ def plot_landscape(
         for corner in np.asarray(placement.arc_fraction(placement.vertices())):
             ax.axvline(corner, color="0.7", linestyle=":", linewidth=0.8)
         if result is not None:
-            s_best = float(placement.arc_fraction(result.cameras[index][None])[0])
+            s_best = float(placement.arc_fraction(_positions(result.cameras)[index][None])[0])
             ax.plot(s_best, float(result.value), "*", color="black", markersize=12)
         ax.set_xlabel("camera position s along the boundary (fraction of its length)")
         ax.set_ylabel("Q")
@@ -227,14 +263,14 @@ def plot_landscape(
         plt.colorbar(image, ax=ax, label="Q")
         _draw_objects(ax, scene, colour="white")
         if result is not None:
-            best = np.asarray(result.cameras[index])
+            best = _positions(result.cameras)[index]
             ax.plot(*best, "*", color="red", markersize=12, markeredgecolor="black")
         ax.set_aspect("equal")
     return ax
 
 
 def plot_optimization(
-    result: OptimizeResult,
+    result: Solution,
     scene: Scene | None,
     placement: AbstractPlacement,
     *,
@@ -249,6 +285,11 @@ def plot_optimization(
 
     **Returns:** the Axes.
     """
+    if result.paths is None:
+        raise ValueError(
+            "plot_optimization draws the paths of a continuous solver's starts "
+            "(MultiStart, SLSQP); this Solution has none."
+        )
     ax = _axes(ax)
     if scene is not None:
         _draw_objects(ax, scene)
@@ -261,7 +302,7 @@ def plot_optimization(
     final = np.asarray(result.start_values)
     finite = np.isfinite(final)
     low, high = (final[finite].min(), final[finite].max()) if finite.any() else (0.0, 1.0)
-    norm = plt.Normalize(low, high if high > low else low + 1)
+    norm = Normalize(low, high if high > low else low + 1)
     colours = plt.get_cmap(cmap)(norm(np.where(finite, final, low)))
     for start in range(paths.shape[1]):
         for camera in range(paths.shape[2]):

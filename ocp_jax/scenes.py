@@ -21,10 +21,10 @@ generators for testing on scenes nobody designed.
 import jax.numpy as jnp
 import numpy as np
 
-from ._camera import Camera
-from ._curves import BezierCurve, BSplineCurve, Circle, Ellipse, PiecewiseCurve
-from ._scene import Scene
-from ._validity import inside_polygon
+from ._geometry.camera import Camera
+from ._geometry.curves import BezierCurve, BSplineCurve, Circle, Ellipse, PiecewiseCurve
+from ._geometry.scene import Scene
+from ._geometry.validity import inside_polygon
 
 __all__ = [
     "BANANA_FREE_POINTS",
@@ -63,7 +63,7 @@ BANANA_FREE_POINTS = (
 )
 
 # The thesis's placement set: centre, width, height of the camera rectangle.
-BANANA_RECTANGLE = ((0.0, 20.0), 100.0, 80.0)
+BANANA_RECTANGLE = (np.array([0.0, 20.0]), 100.0, 80.0)
 
 
 def banana() -> Scene:
@@ -265,6 +265,7 @@ def floor(
     L-shapes, triangles, circles, ellipses, rounded rectangles and B-spline blobs).
 
     **Arguments:**
+
     - `seed`: seeds NumPy's generator; the same seed gives the same floor.
     - `cells`, `objects`, `cell_size`: the room's size, the number of objects
       (`objects <= cells`) and the side of a grid cell.
@@ -302,7 +303,7 @@ def free_points(scene: Scene, count: int, seed: int = 0, clearance: float = 0.1)
 
     **Returns:** an array of shape (count, 2).
     """
-    from ._visibility import signed_distances
+    from ._visibility.visibility import signed_distances
 
     rng = np.random.default_rng(seed)
     low, high = (np.asarray(b) for b in scene.bounds())

@@ -16,7 +16,9 @@ other's queue, so little compilation is repeated. `-n 0` runs it in one process.
 
 import gc
 import os
+import shutil
 import sys
+import tempfile
 
 if not os.environ.get("OCP_TEST_XLA_DEFAULT_OPT") and "xla_backend_optimization_level" not in (
     os.environ.get("XLA_FLAGS", "")
@@ -25,6 +27,17 @@ if not os.environ.get("OCP_TEST_XLA_DEFAULT_OPT") and "xla_backend_optimization_
         os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0"
     ).strip()
 
+# the CLI's tests run in this process: no cache of the CLI's own there
+os.environ.setdefault("OCP_JAX_CACHE_DIR", "off")
+# One persistent compilation cache for the whole run, shared by the xdist workers and the
+# notebooks' kernels (they inherit the environment): a program that several test modules
+# or processes compile (each module drops its programs, see below) is compiled once.
+_CACHE_CREATED_HERE = "JAX_COMPILATION_CACHE_DIR" not in os.environ
+if _CACHE_CREATED_HERE:
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="ocp_jax_tests_")
+    os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+    os.environ["JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES"] = "0"
+
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
@@ -32,9 +45,8 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-import pytest  # noqa: E402
-
 import helpers  # noqa: E402
+import pytest  # noqa: E402
 
 
 def pytest_report_header(config):
@@ -58,3 +70,9 @@ def _release_compiled_programs():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+def pytest_unconfigure(config):
+    """The process that made the run's compilation cache removes it at the end."""
+    if _CACHE_CREATED_HERE:
+        shutil.rmtree(os.environ["JAX_COMPILATION_CACHE_DIR"], ignore_errors=True)

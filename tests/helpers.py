@@ -22,6 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import ocp_jax as ocp
+from ocp_jax._geometry.vec import Vec
+from ocp_jax._visibility import events as _events
+from ocp_jax._visibility import visibility as _visibility
+
 
 # ---------------------------------------------------------------------------
 # scenes
@@ -41,13 +45,29 @@ def two_circles(big_center, big_radius, small_center, small_radius) -> ocp.Scene
 
 # A non-convex closed Bezier (two inflections; a dent facing -x), C2 at the seam.
 BEZIER_FREE = np.array(
-    [[3.6, -1.4], [3.68, -0.62], [2.69, -0.22], [2.21, -1.0], [2.85, -1.4], [2.21, -1.8],
-     [2.69, -2.58], [3.68, -2.18]]
+    [
+        [3.6, -1.4],
+        [3.68, -0.62],
+        [2.69, -0.22],
+        [2.21, -1.0],
+        [2.85, -1.4],
+        [2.21, -1.8],
+        [2.69, -2.58],
+        [3.68, -2.18],
+    ]
 )
 # A deep "C" (cubic periodic B-spline) opening towards +x.
 C_POINTS = np.array(
-    [[0.95, 0.75], [0.0, 1.15], [-1.05, 0.7], [-1.15, -0.5], [0.0, -1.15], [1.0, -0.8],
-     [0.05, -0.3], [0.05, 0.3]]
+    [
+        [0.95, 0.75],
+        [0.0, 1.15],
+        [-1.05, 0.7],
+        [-1.15, -0.5],
+        [0.0, -1.15],
+        [1.0, -0.8],
+        [0.05, -0.3],
+        [0.05, 0.3],
+    ]
 )
 
 
@@ -88,8 +108,15 @@ CAMERAS = {
     },
 }
 # Cameras on the thesis's placement set: the 100 x 80 rectangle centred at (0, 20).
-BANANA_CAMERAS = [[50.0, 0.0], [-50.0, 40.0], [0.0, 60.0], [20.0, -20.0], [-50.0, -20.0],
-                  [50.0, 60.0], [-20.0, -20.0]]
+BANANA_CAMERAS = [
+    [50.0, 0.0],
+    [-50.0, 40.0],
+    [0.0, 60.0],
+    [20.0, -20.0],
+    [-50.0, -20.0],
+    [50.0, 60.0],
+    [-20.0, -20.0],
+]
 
 SCENES = {"three": THREE, "blobs3": BLOBS3, "mixed": MIXED, "banana": BANANA}
 
@@ -102,19 +129,24 @@ def to_reference(scene: ocp.Scene) -> list[dict]:
             out.append({"type": "bezier", "points": np.asarray(c.control_points, float)})
         elif isinstance(c, ocp.BSplineCurve):
             out.append(
-                {"type": "bspline", "points": np.asarray(c.control_points, float),
-                 "degree": int(c.degree)}
+                {
+                    "type": "bspline",
+                    "points": np.asarray(c.control_points, float),
+                    "degree": int(c.degree),
+                }
             )
         elif isinstance(c, ocp.Circle):
             out.append(
-                {"type": "circle", "center": np.asarray(c.center, float),
-                 "radius": float(c.radius)}
+                {"type": "circle", "center": np.asarray(c.center, float), "radius": float(c.radius)}
             )
         elif isinstance(c, ocp.Ellipse):
             out.append(
-                {"type": "ellipse", "center": np.asarray(c.center, float),
-                 "axes": tuple(float(a) for a in np.asarray(c.semi_axes)),
-                 "angle": float(c.angle)}
+                {
+                    "type": "ellipse",
+                    "center": np.asarray(c.center, float),
+                    "axes": tuple(float(a) for a in np.asarray(c.semi_axes)),
+                    "angle": float(c.angle),
+                }
             )
         elif isinstance(c, ocp.PiecewiseCurve):
             out.append({"type": "piecewise", "segments": np.asarray(c.control_points, float)})
@@ -310,8 +342,9 @@ def tangency_roots_near(spec: dict, camera, t0: float, width=0.02, n=4001) -> np
 
 
 @functools.cache
-def near_double_camera(scene_name: str, curve: int, which: int, distance: float,
-                       side: int, separation: float = 0.004):
+def near_double_camera(
+    scene_name: str, curve: int, which: int, distance: float, side: int, separation: float = 0.004
+):
     """A camera at `distance` along the tangent line of the `which`-th inflection of
     `curve`, moved off the line (towards `side`) just enough that the tangency function
     has two roots `separation` apart (two roots close to a double root: closer than one
@@ -339,3 +372,132 @@ def near_double_camera(scene_name: str, curve: int, which: int, distance: float,
     camera = x0 + distance * u + side * hi * normal
     roots = tangency_roots_near(spec, camera, t0)
     return camera, tuple(float(r) for r in np.sort(roots))
+
+
+rel = relative_error
+
+OPTIONS = ocp.VisibilityOptions()  # the defaults, whose budgets the tests read
+J = np.array([[0.0, -1.0], [1.0, 0.0]])  # n = J x' (the library's Eq. 2.3)
+R = np.array([[0.0, 1.0], [-1.0, 0.0]])  # the thesis's matrix in Eqs. 5.14-5.20, 5.29-5.32
+
+
+def grid_cells(scene):
+    """The number of grid cells the library uses for `scene` by default."""
+    return OPTIONS.grid or scene.grid_cells()
+
+
+# --- shared by several test modules: the engine's events as visibility computes them,
+# and the batched results of the named scenes
+
+
+def camera_grid(scene, camera: Vec, samples):
+    """The camera's grid, as visibility builds it (its nearest point on each curve an
+    extra node)."""
+    frozen = jax.lax.stop_gradient(scene)
+    sense = _visibility._sense(frozen, samples)
+    cameras = camera.map(lambda a: jnp.reshape(a, (1,)))
+    nearest = _visibility._nearest_points(frozen, cameras, samples, sense).t[:, 0]
+    return _events.with_nearest_node(scene, samples, nearest)
+
+
+def tangency_times(scene, camera: Vec, samples):
+    """The camera's tangency times, as visibility computes them (on its grid)."""
+    grid = camera_grid(scene, camera, samples)
+    return _events.tangency_times(
+        scene, camera, grid, OPTIONS.max_tangents, OPTIONS.newton_iterations
+    )
+
+
+def camera_events(scene, camera):
+    """One camera's tangency times, ray sources (tangency points, silhouette corners)
+    and shadow times, as visibility computes them."""
+    samples = _events.sample(jax.lax.stop_gradient(scene), grid_cells(scene))
+    cam = Vec(camera[0], camera[1])
+    tangents = tangency_times(scene, cam, samples)
+    points = _events.tangency_points(scene, tangents)
+    sources = _events.tangency_sources(scene, points)
+    if scene.has_corners:
+        sources = _events.join_sources(sources, _events.silhouette_corners(scene, cam, samples))
+    probes = _events.grazing_probes(cam, samples, tangents, points)
+    shadows = _events.shadow_times(
+        scene, cam, samples, sources, probes, OPTIONS.max_shadows, OPTIONS.newton_iterations
+    )
+    return tangents, sources, shadows
+
+
+def _events_fn(scene, camera):
+    """The tangency and shadow times of one camera, as visibility computes them."""
+    tan, _, sh = camera_events(scene, camera)
+    return tan.t, tan.valid, sh.t, sh.valid
+
+
+def _events_and_jacobian(scene, camera):
+    tan_t, tan_valid, sh_t, sh_valid = _events_fn(scene, camera)
+
+    def times(s, c):
+        out = _events_fn(s, c)
+        return out[0], out[2]
+
+    jac = jax.jacfwd(times, argnums=(0, 1))(scene, camera)
+    return (tan_t, tan_valid, sh_t, sh_valid), jac
+
+
+@functools.cache
+def events_and_jacobian():
+    return jax.jit(_events_and_jacobian)
+
+
+# ===========================================================================
+# the NumPy reference on non-convex scenes with several objects
+# ===========================================================================
+# scenes whose (k) batch also yields gradients (used by the finite-difference tests)
+GRAD_SETS = {("three", 2), ("mixed", 1)}
+
+
+# Cameras nearly on an inflection tangent line (helpers.near_double_camera arguments:
+# scene, curve, inflection, distance along the line, side, separation of the two roots).
+# Of three_objects' kidney B-spline:
+KIDNEY_NEAR_DOUBLE = [("three", 0, 1, 4.0, 1, 0.004), ("three", 0, 1, 4.0, 1, 0.001)]
+
+
+# of the banana's two inflections (cameras inside the thesis's rectangle):
+BANANA_NEAR_DOUBLE = [
+    ("banana", 0, 0, -30.0, 1, 0.004),
+    ("banana", 0, 1, 30.0, 1, 0.004),
+    ("banana", 0, 0, -30.0, 1, 0.002),
+    ("banana", 0, 0, -30.0, 1, 0.001),
+]
+
+
+def camera_sets(name, k):
+    sets = np.asarray(CAMERAS[name][k], float).reshape(-1, k, 2)
+    if (name, k) == ("three", 1):
+        extra = [near_double_camera(*args)[0] for args in KIDNEY_NEAR_DOUBLE]
+        sets = np.concatenate([sets, np.asarray(extra)[:, None]])
+    return sets
+
+
+@functools.cache
+def scene_results(name, k):
+    """(camera sets, outputs) of the shared batched function for this scene and k."""
+    if name == "banana":
+        extra = [near_double_camera(*args)[0] for args in BANANA_NEAR_DOUBLE]
+        cams = np.concatenate([np.asarray(BANANA_CAMERAS), extra])[:, None]
+    else:
+        cams = camera_sets(name, k)
+    kind = "grad" if (name, k) in GRAD_SETS else "values"
+    return cams, batched(kind, SCENES[name], cams)
+
+
+@functools.cache
+def visible_length_of(name):
+    """VisibleLength of `name`'s scene for a batch of single cameras, jitted once."""
+    return jax.jit(jax.vmap(lambda c: ocp.visibility(SCENES[name], c[None], VL)))
+
+
+# name: (camera, big centre, big radius, small centre, small radius)
+TWO_CIRCLE_CASES = {
+    "in line": ((7.0, 0.3), (0.0, 0.0), 2.0, (4.0, 0.0), 0.6),
+    "from above left": ((-3.0, 5.0), (1.0, -1.0), 1.5, (-0.9, 1.8), 0.35),
+    "from above": ((2.0, 6.0), (0.5, 0.0), 1.2, (1.5, 3.0), 0.3),
+}

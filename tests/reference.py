@@ -89,6 +89,7 @@ misclassified over that tiny width.  Degenerate configurations (a straight
 piece collinear with a camera, exactly coincident tangents) are handled up to
 measure-zero ambiguities.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -422,8 +423,10 @@ class _Geo:
             nl = np.linalg.norm(left, axis=-1)
             nr = np.linalg.norm(right, axis=-1)
             sc = np.maximum(np.maximum(nl, nr), 1e-300)
-            jump = np.linalg.norm(left / np.maximum(nl, 1e-300)[:, None]
-                                  - right / np.maximum(nr, 1e-300)[:, None], axis=-1)
+            jump = np.linalg.norm(
+                left / np.maximum(nl, 1e-300)[:, None] - right / np.maximum(nr, 1e-300)[:, None],
+                axis=-1,
+            )
             is_corner = (jump > 1e-12) | (np.minimum(nl, nr) <= 1e-12 * sc)
             if c["type"] in ("circle", "ellipse"):
                 is_corner[:] = False
@@ -520,8 +523,9 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
     C = np.asarray(C, dtype=float)
     pose = pose or {}
     sil = _silhouettes(geo, C)
-    Ppts = [(_eval_x(geo.curves[i], sil[i]) if sil[i].size else np.zeros((0, 2)))
-            for i in range(geo.n)]
+    Ppts = [
+        (_eval_x(geo.curves[i], sil[i]) if sil[i].size else np.zeros((0, 2))) for i in range(geo.n)
+    ]
     P = np.concatenate(Ppts, axis=0)
     P_curve = np.concatenate([np.full(sil[i].size, i) for i in range(geo.n)])
     P_t = np.concatenate(sil)
@@ -554,8 +558,9 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
             # every row's grid made the reference 1.3x slower)
             V = _cross(PC[:, None, :], XC[None, :, :])
             if corner_rays:
-                k_after = np.minimum((np.mod(P_t, 1.0) * geo.npieces[i]).round().astype(int),
-                                     geo.npieces[i] - 1)
+                k_after = np.minimum(
+                    (np.mod(P_t, 1.0) * geo.npieces[i]).round().astype(int), geo.npieces[i] - 1
+                )
                 limit = _cross(PC, _eval_local(c, np.mod(P_t, 1.0), k_after)[1])
                 V, U = deflated(np.arange(P.shape[0])[:, None], S, V)
                 V = np.where(at_corner[:, None] & (U == 0), limit[:, None], V)
@@ -598,7 +603,7 @@ def _camera_partition(geo, C, merge_tol=1e-12, pose=None):
     pos = 0
     for b in bps:
         nb = b.size - 1
-        out.append((b, vis[pos:pos + nb]))
+        out.append((b, vis[pos : pos + nb]))
         pos += nb
     return out
 
@@ -611,7 +616,7 @@ def _ray_clear(geo, C, X, own, tm, chunk=256):
     for j, c in enumerate(geo.curves):
         XC = geo.xg[j] - C
         for s0 in range(0, X.shape[0], chunk):
-            Dk = D[s0:s0 + chunk]
+            Dk = D[s0 : s0 + chunk]
             V = _cross(Dk[:, None, :], XC[None, :, :])
             S = np.broadcast_to(geo.tg[j][None, :], V.shape)
 
@@ -821,20 +826,33 @@ def _split_at_kinks(curve, cams, objective, groups, a, b, piece, seen, m=128):
     for idx in range(a.size):
         rts = roots[owner == idx]
         if rts.size == 0:
-            na.append([a[idx]]); nb.append([b[idx]])
-            npc.append([piece[idx]]); ns.append(seen[:, idx:idx + 1])
+            na.append([a[idx]])
+            nb.append([b[idx]])
+            npc.append([piece[idx]])
+            ns.append(seen[:, idx : idx + 1])
             continue
         pts = np.unique(np.concatenate([[a[idx]], rts, [b[idx]]]))
-        na.append(pts[:-1]); nb.append(pts[1:])
+        na.append(pts[:-1])
+        nb.append(pts[1:])
         npc.append(np.full(pts.size - 1, piece[idx]))
-        ns.append(np.repeat(seen[:, idx:idx + 1], pts.size - 1, axis=1))
-    return (np.concatenate(na), np.concatenate(nb), np.concatenate(npc).astype(np.int64),
-            np.concatenate(ns, axis=1))
+        ns.append(np.repeat(seen[:, idx : idx + 1], pts.size - 1, axis=1))
+    return (
+        np.concatenate(na),
+        np.concatenate(nb),
+        np.concatenate(npc).astype(np.int64),
+        np.concatenate(ns, axis=1),
+    )
 
 
-def reference_visibility(curves, cameras, objective="foreshortened",
-                         n_grid: int = 4096, quad_tol: float = 1e-14, poses=None,
-                         observed=None) -> float:
+def reference_visibility(
+    curves,
+    cameras,
+    objective="foreshortened",
+    n_grid: int = 4096,
+    quad_tol: float = 1e-14,
+    poses=None,
+    observed=None,
+) -> float:
     """Reference value of Q (see module docstring).
 
     objective: "visible_length", "foreshortened", ("reconstruction", area, delta) (pairs
@@ -847,8 +865,9 @@ def reference_visibility(curves, cameras, objective="foreshortened",
     return _evaluate(curves, cameras, objective, n_grid, quad_tol, poses, observed)[0]
 
 
-def reference_visibility_with_error(curves, cameras, objective="foreshortened",
-                                    n_grid: int = 4096, quad_tol: float = 1e-14):
+def reference_visibility_with_error(
+    curves, cameras, objective="foreshortened", n_grid: int = 4096, quad_tol: float = 1e-14
+):
     """Return ``(Q, error_estimate)``: Q from grid ``n_grid``; the estimate is
     the difference to an evaluation with an unrelated grid (~1.618 n_grid),
     plus the accumulated quadrature error estimates."""

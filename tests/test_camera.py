@@ -5,14 +5,14 @@ bad input."""
 import functools
 import math
 
+import helpers as H
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-import helpers as H
-import ocp_jax as ocp
 from reference import reference_visibility
+
+import ocp_jax as ocp
 
 rel = H.relative_error
 G = H.foreshortened_antiderivative
@@ -146,22 +146,22 @@ def test_visible_intervals_of_a_wedge():
 # ===========================================================================
 CENTRE = np.array([1.0, 0.7])
 # (cameras, heading offset from the scene centre, half_fov, range), k = 2 each.
-THREE_POSES = [
-    ([[5.0, 4.0], [-4.5, 2.5]], [0.1, -0.15], [0.35, 0.5], [4.6, 5.0]),
-    ([[3.1, 0.2], [-3.0, -2.8]], [0.5, 0.0], [1.2, 0.3], [2.35, 4.35]),
-    ([[1.2, -4.0], [0.2, 4.5]], [-0.2, 0.25], [0.6, 2.5], [5.5, 4.5]),
-    ([[-1.4, 2.2], [4.0, -2.0]], [0.9, 0.1], [0.8, 0.45], [1.7, 2.7]),
-]
+THREE_POSES = {  # name: positions, heading offsets, half fields of view, ranges
+    "narrow wedges": ([[5.0, 4.0], [-4.5, 2.5]], [0.1, -0.15], [0.35, 0.5], [4.6, 5.0]),
+    "short ranges": ([[3.1, 0.2], [-3.0, -2.8]], [0.5, 0.0], [1.2, 0.3], [2.35, 4.35]),
+    "one wide wedge": ([[1.2, -4.0], [0.2, 4.5]], [-0.2, 0.25], [0.6, 2.5], [5.5, 4.5]),
+    "turned away": ([[-1.4, 2.2], [4.0, -2.0]], [0.9, 0.1], [0.8, 0.45], [1.7, 2.7]),
+}
 
 
 def _three_poses():
-    cams = np.array([p[0] for p in THREE_POSES], float)
+    cams = np.array([p[0] for p in THREE_POSES.values()], float)
     to_centre = CENTRE - cams
     heading = np.arctan2(to_centre[..., 1], to_centre[..., 0]) + np.array(
-        [p[1] for p in THREE_POSES]
+        [p[1] for p in THREE_POSES.values()]
     )
-    fov = np.array([p[2] for p in THREE_POSES], float)
-    reach = np.array([p[3] for p in THREE_POSES], float)
+    fov = np.array([p[2] for p in THREE_POSES.values()], float)
+    reach = np.array([p[3] for p in THREE_POSES.values()], float)
     return cams, heading, fov, reach
 
 
@@ -172,8 +172,9 @@ def three_results():
     return jax.tree.map(np.asarray, out)
 
 
-@pytest.mark.parametrize("i", range(len(THREE_POSES)))
-def test_three_objects_match_reference(i):
+@pytest.mark.parametrize("case", THREE_POSES)
+def test_three_objects_match_reference(case):
+    i = list(THREE_POSES).index(case)  # its row of the batch
     cams, heading, fov, reach = _three_poses()
     poses = [
         {"heading": heading[i, c], "half_fov": fov[i, c], "range": reach[i, c]} for c in range(2)

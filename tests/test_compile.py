@@ -11,8 +11,7 @@ import pytest
 
 import ocp_jax as ocp
 from ocp_jax import scenes
-from ocp_jax._compile import jit
-from ocp_jax._materialize import SMALL_BATCH, computed_on_one_thread
+from ocp_jax._visibility.xla_cpu import SMALL_BATCH, computed_on_one_thread, jit
 
 
 def _independent_kernels(x):
@@ -56,7 +55,7 @@ def test_visibility_under_a_jit_with_the_options():
 
 def _split_kernels(compiled) -> int:
     """Kernels XLA's CPU backend splits between threads: those given a non-empty list of
-    partitions (benchmarks/compile_split.py)."""
+    partitions."""
     return compiled.as_text().count('"outer_dimension_partitions":["')
 
 

@@ -7,11 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import BEZIER_FREE, C_POINTS, to_reference
 from jax.flatten_util import ravel_pytree
 from reference import eval_curve
 
 import ocp_jax as ocp
-from helpers import BEZIER_FREE, C_POINTS, to_reference
 
 # A plain closed Bezier curve (not built by closed_c2), C1 but not C2 at the seam:
 # P1 - P0 == P5 - P4 = (0.8, 0.6), second differences differ.
@@ -130,7 +130,9 @@ def test_circle_closed_form():
     x, dx, ddx = (np.asarray(v) for v in circle.derivatives(t))
     u = np.stack([np.cos(a), np.sin(a)], -1)
     np.testing.assert_allclose(x, c + r * u, atol=1e-15)
-    np.testing.assert_allclose(dx, 2 * np.pi * r * np.stack([-np.sin(a), np.cos(a)], -1), atol=1e-13)
+    np.testing.assert_allclose(
+        dx, 2 * np.pi * r * np.stack([-np.sin(a), np.cos(a)], -1), atol=1e-13
+    )
     np.testing.assert_allclose(ddx, -((2 * np.pi) ** 2) * r * u, atol=1e-12)
     # counter-clockwise: n = [[0, -1], [1, 0]] x' points inwards
     np.testing.assert_allclose(np.asarray(circle.normal(t)), -2 * np.pi * r * u, atol=1e-13)
@@ -299,7 +301,10 @@ NAN_POINTS[3, 1] = np.nan
         (lambda: ocp.BezierCurve(SQUARE_OPEN), "must be closed"),
         (lambda: ocp.BezierCurve(SQUARE_CORNER), "corner at the seam"),
         (lambda: ocp.BezierCurve(CUSP), "corner at the seam"),
-        (lambda: ocp.BezierCurve([[0.0, 0.0], [1.0, 1.0], [0.0, 0.0]]), "at least 4 control points"),
+        (
+            lambda: ocp.BezierCurve([[0.0, 0.0], [1.0, 1.0], [0.0, 0.0]]),
+            "at least 4 control points",
+        ),
         (lambda: ocp.BezierCurve(np.zeros((5, 3))), r"shape \(n, 2\)"),
         (lambda: ocp.BezierCurve(np.r_[NAN_POINTS, NAN_POINTS[:1]]), "NaN or inf"),
         (lambda: ocp.BezierCurve.closed_c2([[0.0, 0.0], [1.0, 1.0]]), "at least 3 control points"),
@@ -322,12 +327,30 @@ NAN_POINTS[3, 1] = np.nan
         (lambda: ocp.Scene([]), "at least one curve"),
     ],
     ids=[
-        "bezier-open", "bezier-corner", "bezier-cusp", "bezier-too-few", "bezier-shape",
-        "bezier-nan", "closed_c2-too-few", "closed_c2-inf", "bspline-degree1",
-        "bspline-degree0", "bspline-degree-float", "bspline3-too-few", "bspline5-too-few",
-        "bspline2-too-few", "bspline-nan", "bspline-degenerate", "circle-zero-radius",
-        "circle-negative-radius", "circle-nan", "circle-shape", "ellipse-zero-axis",
-        "ellipse-negative-axis", "ellipse-nan-angle", "scene-empty",
+        "bezier-open",
+        "bezier-corner",
+        "bezier-cusp",
+        "bezier-too-few",
+        "bezier-shape",
+        "bezier-nan",
+        "closed_c2-too-few",
+        "closed_c2-inf",
+        "bspline-degree1",
+        "bspline-degree0",
+        "bspline-degree-float",
+        "bspline3-too-few",
+        "bspline5-too-few",
+        "bspline2-too-few",
+        "bspline-nan",
+        "bspline-degenerate",
+        "circle-zero-radius",
+        "circle-negative-radius",
+        "circle-nan",
+        "circle-shape",
+        "ellipse-zero-axis",
+        "ellipse-negative-axis",
+        "ellipse-nan-angle",
+        "scene-empty",
     ],
 )
 def test_invalid_curves_raise_value_error(make, match):
@@ -349,7 +372,9 @@ def test_curves_from_constants_can_be_built_inside_jit():
     def first_point(scale):
         return ocp.BSplineCurve(points)(jnp.zeros(1))[0] * scale
 
-    np.testing.assert_allclose(first_point(2.0), 2 * np.asarray(ocp.BSplineCurve(points)(jnp.zeros(1))[0]))
+    np.testing.assert_allclose(
+        first_point(2.0), 2 * np.asarray(ocp.BSplineCurve(points)(jnp.zeros(1))[0])
+    )
 
 
 def test_costly_evaluation_marks_long_polynomials_only():

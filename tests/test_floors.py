@@ -14,7 +14,7 @@ from reference import reference_visibility
 from visilibity_reference import outline, union_visible_length
 
 import ocp_jax as ocp
-from ocp_jax._visibility import signed_distances
+from ocp_jax._visibility.visibility import signed_distances
 
 POLYGONS = ("rectangle", "l_shape", "triangle")
 CURVED = ("circle", "blob", "ellipse", "rounded_rectangle")

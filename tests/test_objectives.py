@@ -9,25 +9,25 @@ shrinks.
 import functools
 import math
 
+import helpers as H
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-import helpers as H
-import ocp_jax as ocp
 from reference import reference_visibility
+
+import ocp_jax as ocp
 
 RECONSTRUCTION = ocp.Reconstruction(area=0.05, delta=0.05)  # q = 1/2 at d ~ 4.5 broadside
 REFERENCE_RECONSTRUCTION = ("reconstruction", 0.05, 0.05)
-GROUP_CASES = [  # scene, camera sets (several cameras: the best pair varies along curves)
-    ("three", H.CAMERAS["three"][3]),
-    ("mixed", [[[1.0, 4.2], [3.0, -4.0], [-2.5, 3.0], [1.7, -0.2]]]),
-]
+GROUP_CASES = {  # name: scene, camera sets (the best pair varies along curves)
+    "three objects, 3 cameras": ("three", H.CAMERAS["three"][3]),
+    "mixed, 4 cameras": ("mixed", [[[1.0, 4.2], [3.0, -4.0], [-2.5, 3.0], [1.7, -0.2]]]),
+}
 
 
 @functools.cache
-def group_values(case: int):
+def group_values(case: str):
     name, cameras = GROUP_CASES[case]
     scene = H.SCENES[name]
 
@@ -39,7 +39,7 @@ def group_values(case: int):
     return np.asarray(cameras), jax.tree.map(np.asarray, values(jnp.asarray(cameras)))
 
 
-@pytest.mark.parametrize("case", range(len(GROUP_CASES)))
+@pytest.mark.parametrize("case", GROUP_CASES)
 def test_groups_match_reference(case):
     """Reconstruction (best pair) and Coverage(2) on non-convex scenes with occlusions,
     3 cameras (two sets) and 4 cameras (6 pairs, 15 crossover functions), against the
@@ -164,7 +164,8 @@ def test_group_objectives_need_enough_cameras():
     with pytest.raises(ValueError, match="Coverage.m must be a positive int"):
         ocp.Coverage(0)
     with pytest.raises(ValueError, match="Reconstruction values groups of 2 cameras"):
-        ocp.greedy(circle, RECONSTRUCTION, ocp.RectangleBoundary(jnp.zeros(2), 8.0, 8.0), 1)
+        square = ocp.RectangleBoundary(jnp.zeros(2), 8.0, 8.0)
+        ocp.place(circle, RECONSTRUCTION, square, 1, solver=ocp.Greedy())
 
 
 # --- the smoothed visibility of Chapter 6 --------------------------------------------
@@ -244,9 +245,10 @@ def test_optimize_coverage_finds_the_closed_form():
     is 2 acos(1 / (4 sqrt 2)); greedy's first stage is the best pair of the 16
     candidates (two distinct ones: less)."""
     want = 2 * math.acos(1 / (4 * math.sqrt(2)))
-    result = ocp.optimize(H.circle_scene(), ocp.Coverage(2), SQUARE, 2, n_starts=4, max_steps=60)
+    solver = ocp.MultiStart(n_starts=4, max_steps=60)
+    result = ocp.place(H.circle_scene(), ocp.Coverage(2), SQUARE, 2, solver=solver)
     assert abs(float(result.value) - want) < 1e-6, result.value
-    baseline = ocp.greedy(H.circle_scene(), ocp.Coverage(2), SQUARE, 2, resolution=4)
+    baseline = ocp.place(H.circle_scene(), ocp.Coverage(2), SQUARE, 2, solver=ocp.Greedy(4))
     assert baseline.num_evaluations == math.comb(16, 2)
     assert abs(float(np.max(baseline.stage_values[0])) - float(baseline.value)) < 1e-12
     assert float(baseline.value) < want
@@ -261,10 +263,11 @@ def test_optimize_refines_greedy_reconstruction():
         [ocp.Circle(jnp.array([-1.5, 0.0]), 1.0), ocp.Circle(jnp.array([1.8, 0.6]), 0.7)]
     )
     objective = ocp.Reconstruction(area=0.05, delta=0.05)
-    baseline = ocp.greedy(scene, objective, SQUARE, 2, resolution=8)
+    baseline = ocp.place(scene, objective, SQUARE, 2, solver=ocp.Greedy(8))
     starts = SQUARE.arc_fraction(baseline.cameras)[None, :, None]
-    result = ocp.optimize(scene, objective, SQUARE, 2, starts=starts, max_steps=100)
-    assert result.start_status == ("converged",)
+    solver = ocp.MultiStart(starts=starts, max_steps=100)
+    result = ocp.place(scene, objective, SQUARE, 2, solver=solver)
+    assert result.result == ocp.RESULTS.successful
     assert float(result.value) > float(baseline.value) * (1 + 1e-3) > 1.8, (
         result.value,
         baseline.value,
@@ -276,7 +279,8 @@ def test_optimize_smoothed_objective():
     unit circle, smoothed foreshortened Q at w = 0.02, ends at a corner, where the exact
     Q is largest (within the optimum's flatness)."""
     objective = ocp.Smoothed(ocp.Foreshortened(), 0.02, nodes=256)
-    result = ocp.optimize(H.circle_scene(), objective, SQUARE, 1, n_starts=4, max_steps=60)
+    solver = ocp.MultiStart(n_starts=4, max_steps=60)
+    result = ocp.place(H.circle_scene(), objective, SQUARE, 1, solver=solver)
     corner = np.abs(np.asarray(result.cameras[0]))
     assert np.allclose(corner, 4.0, atol=0.05), result.cameras
     exact = ocp.visibility(H.circle_scene(), jnp.full((1, 2), 4.0))

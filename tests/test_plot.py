@@ -9,7 +9,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from matplotlib.colors import to_rgb  # noqa: E402
-from test_optimize import BOX, CIRCLE, SQUARE, TWO_CIRCLES, box_result, square_result  # noqa: E402
+from test_place import BOX, CIRCLE, SQUARE, TWO_CIRCLES, box_result, square_result  # noqa: E402
 
 import ocp_jax as ocp  # noqa: E402
 from ocp_jax import plot  # noqa: E402

@@ -4,17 +4,17 @@ outside reference VisiLibity1, the NumPy reference, finite differences, bad inpu
 import functools
 import itertools
 
+import helpers as H
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 from matplotlib.path import Path
-
-import helpers as H
-import ocp_jax as ocp
 from reference import reference_visibility
 from visilibity_reference import visible_lengths
+
+import ocp_jax as ocp
 
 rel = H.relative_error
 
@@ -115,8 +115,9 @@ def polygon_values():
     return evaluate("values", POLYGONS, [[c] for c in CAMERAS])
 
 
-@pytest.mark.parametrize("i", range(len(CAMERAS)))
-def test_polygons_match_visilibity(i):
+@pytest.mark.parametrize("camera", CAMERAS, ids=str)
+def test_polygons_match_visilibity(camera):
+    i = CAMERAS.index(camera)  # its row of the batch
     vl, _ = polygon_values()
     want = sum(visible_lengths(None, OBSTACLES, CAMERAS[i]))
     assert abs(vl[i] / want - 1) < 1e-9, (vl[i], want)
@@ -125,8 +126,9 @@ def test_polygons_match_visilibity(i):
 # ===========================================================================
 # the NumPy reference: foreshortening, pairs, Bezier pieces, view wedges
 # ===========================================================================
-@pytest.mark.parametrize("i", range(len(CAMERAS)))
-def test_polygons_foreshortened_match_reference(i):
+@pytest.mark.parametrize("camera", CAMERAS, ids=str)
+def test_polygons_foreshortened_match_reference(camera):
+    i = CAMERAS.index(camera)  # its row of the batch
     _, fs = polygon_values()
     want = reference_visibility(H.to_reference(POLYGONS), [CAMERAS[i]], "foreshortened")
     assert abs(fs[i] / want - 1) < 1e-9
@@ -240,8 +242,8 @@ def test_a_short_arc_beside_a_corner_is_not_hidden_by_its_own_polygon():
     that short arc lies a twentieth of a grid cell (an edge) from the corner (9, 3); until
     2026-12-04 the test of its own polygon took the deflated line-of-sight function
     across that corner, whose pole made the right edge's cell show a pair of crossings,
-    and the arc was hidden (Q = 5, also at cameras nearby: `benchmarks/integer_polygons.py`
-    found this at 4 of 160 cameras moved off the integer grid, up to 5% of Q)."""
+    and the arc was hidden (Q = 5, also at 4 of 160 cameras moved off the integer grid,
+    up to 5% of Q)."""
     boxes = [
         np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], float)
         for x0, y0, x1, y1 in [(7, 2, 9, 3), (7, 5, 10, 6)]

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 import ocp_jax as ocp
-from ocp_jax import _cli, scenes
-from ocp_jax._problem_file import load_problem, problem_to_json
+from ocp_jax import scenes
+from ocp_jax._io import cli as _cli
+from ocp_jax._io.problem_file import load_problem, problem_to_json
 
-# the problem of tests/test_optimize.py (shares its compiled optimiser)
+# the problem of tests/test_place.py (shares its compiled optimiser)
 PROBLEM = {
     "curves": [
         {"type": "circle", "center": [-1.5, 0.0], "radius": 1.0},
@@ -71,14 +72,14 @@ def jax_leaves(tree):
         ({"curves": [{"type": "spline"}], "placement": {}}, r"curves\[0\]: unknown type 'spline'"),
         (
             {"curves": [{"type": "circle", "center": [0, 0]}], "placement": {}},
-            r"curves\[0\] \(circle\): missing \['radius'\]",
+            r"curves\[0\] \(circle\): missing radius \(a circle takes center, radius\)",
         ),
         (
             {
                 "curves": [{"type": "circle", "center": [0, 0], "radius": 1, "colour": 2}],
                 "placement": {},
             },
-            r"unknown \['colour'\]",
+            r"unknown colour",
         ),
         (
             {
@@ -98,7 +99,7 @@ def jax_leaves(tree):
         ({**PROBLEM, "objective": "area"}, "objective: unknown type 'area'"),
         (
             {**PROBLEM, "objective": {"type": "smoothed", "width": 0.1}},
-            r"objective \(smoothed\): missing \['objective'\]",
+            r"objective \(smoothed\): missing objective \(",
         ),
         (
             {**PROBLEM, "objective": {"type": "smoothed", "objective": "fs", "width": 0.1}},
@@ -125,13 +126,21 @@ def run_cli(path, capsys, starts: int, steps: int):
     """`ocp-jax optimize` with 2 cameras: what it prints, the Q it prints, and the Q the
     library gives for the same problem and settings (the CLI prints 6 decimals)."""
     _cli.main(
-        ["optimize", str(path), "--cameras", "2", "--starts", str(starts), "--max-steps", str(steps)]
+        [
+            "optimize",
+            str(path),
+            "--cameras",
+            "2",
+            "--starts",
+            str(starts),
+            "--max-steps",
+            str(steps),
+        ]
     )
     out = capsys.readouterr().out
     problem = load_problem(path)
-    expected = ocp.optimize(
-        problem.scene, problem.objective, problem.placement, 2, n_starts=starts, max_steps=steps
-    )
+    solver = ocp.MultiStart(n_starts=starts, max_steps=steps)
+    expected = ocp.place(problem.scene, problem.objective, problem.placement, 2, solver=solver)
     value = float(out.split("Q = ")[1].split()[0])
     assert value == pytest.approx(float(expected.value), abs=5e-7)
     return out, value
@@ -140,7 +149,7 @@ def run_cli(path, capsys, starts: int, steps: int):
 def test_cli_optimize(tmp_path, capsys):
     out, value = run_cli(write(tmp_path, PROBLEM), capsys, 4, 60)
     assert "2 curve(s), RectangleBoundary, Foreshortened" in out
-    # tests/test_optimize.py finds the same optimum from other starts
+    # tests/test_place.py finds the same optimum from other starts
     assert value == pytest.approx(4.7047495, abs=1e-6)
 
 
@@ -175,13 +184,65 @@ def test_cli_optimize_reconstruction(tmp_path, capsys):
 
 
 def test_cli_reports_bad_files(tmp_path):
+    """One line naming the cause, in the file's own words, and no traceback."""
     with pytest.raises(SystemExit, match="is not valid JSON"):
         _cli.main(["optimize", str(write(tmp_path, "{"))])
     with pytest.raises(SystemExit):
         _cli.main(["optimize", str(write(tmp_path, PROBLEM)), "--cameras", "0"])
+    two_vertices = {**PROBLEM, "curves": [{"type": "polygon", "vertices": [[0, 0], [1, 0]]}]}
+    with pytest.raises(SystemExit) as error:
+        _cli.main(["optimize", str(write(tmp_path, two_vertices))])
+    message = str(error.value)
+    assert "curves[0] (polygon): vertices must be a list of at least 3 [x, y] points" in message
+    assert "\n" not in message and "control points" not in message
+    no_radius = {**PROBLEM, "curves": [{"type": "circle", "center": [0, 0]}]}
+    with pytest.raises(SystemExit, match=r"curves\[0\] \(circle\): missing radius \("):
+        _cli.main(["optimize", str(write(tmp_path, no_radius))])
+    with pytest.raises(ValueError, match="vertices must be a list"):  # --debug: the error
+        _cli.main(["--debug", "optimize", str(write(tmp_path, two_vertices))])
+
+
+def test_cli_infeasible_placement_is_one_line(tmp_path):
+    inside = {**PROBLEM, "placement": {"type": "free", "lower": [-1.6, -0.1], "upper": [-1.4, 0.1]}}
+    with pytest.raises(SystemExit, match="every start is infeasible") as error:
+        _cli.main(["optimize", str(write(tmp_path, inside)), "--starts", "2"])
+    assert "\n" not in str(error.value) and "more starts" not in str(error.value)
+
+
+def test_cli_without_a_command_prints_help(capsys):
+    _cli.main([])
+    assert "usage: ocp-jax" in capsys.readouterr().out
 
 
 def test_cli_example_is_a_loadable_problem(tmp_path, capsys):
     _cli.main(["example"])
-    loaded = load_problem(write(tmp_path, capsys.readouterr().out))
+    text = capsys.readouterr().out
+    assert "[4.0, 31.8]," in text  # float64, one point per line
+    loaded = load_problem(write(tmp_path, text))
     assert loaded.scene.curves[0].degree == 18
+
+
+def test_cli_compilation_cache_follows_xdg(tmp_path, monkeypatch):
+    """The cache directory: OCP_JAX_CACHE_DIR, else $XDG_CACHE_HOME/ocp_jax/jax;
+    "off" turns it off. (The settings are restored: the suite runs without a cache.)"""
+    saved = {
+        name: getattr(jax.config, name)
+        for name in (
+            "jax_compilation_cache_dir",
+            "jax_persistent_cache_min_compile_time_secs",
+            "jax_persistent_cache_min_entry_size_bytes",
+        )
+    }
+    try:
+        monkeypatch.delenv("OCP_JAX_CACHE_DIR")
+        monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+        assert _cli.compilation_cache(None) == tmp_path / "xdg" / "ocp_jax" / "jax"
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xdg" / "ocp_jax" / "jax")
+        monkeypatch.setenv("OCP_JAX_CACHE_DIR", str(tmp_path / "mine"))
+        assert _cli.compilation_cache(None) == tmp_path / "mine"
+        assert _cli.compilation_cache(str(tmp_path / "flag")) == tmp_path / "flag"
+        monkeypatch.setenv("OCP_JAX_CACHE_DIR", "off")
+        assert _cli.compilation_cache(None) is None
+    finally:
+        for name, value in saved.items():
+            jax.config.update(name, value)

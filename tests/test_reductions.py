@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ocp_jax._reductions import fused_reduce, sorted_rows
+from ocp_jax._visibility.xla_cpu import fused_reduce, sorted_rows
 
 SHAPES_AND_AXES = [
     ((37,), -1),  # odd, folded onto itself (max, min, any, all) or padded (sum)

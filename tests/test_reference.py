@@ -1,5 +1,6 @@
 """Tests of the independent NumPy reference (tests/reference.py) itself,
 against closed forms and against an independent brute-force estimate."""
+
 from __future__ import annotations
 
 import math
@@ -85,8 +86,11 @@ def two_circle_closed_form(C, cb, R, cs, r):
     assert -a_b < p1 < p2 < a_b
     length = R * (2 * a_b - (p2 - p1)) + r * 2 * a_s
     G = fs_antiderivative
-    fs = (G(p1, R, db) - G(-a_b, R, db)) + (G(a_b, R, db) - G(p2, R, db)) \
+    fs = (
+        (G(p1, R, db) - G(-a_b, R, db))
+        + (G(a_b, R, db) - G(p2, R, db))
         + (G(a_s, r, ds) - G(-a_s, r, ds))
+    )
     return length, fs, [(-a_b + ang0, p1 + ang0), (p2 + ang0, a_b + ang0)]
 
 
@@ -168,8 +172,18 @@ def brute_force(curves, cameras, objective, n=200_000):
 # ---------------------------------------------------------------------------
 # curve evaluation
 # ---------------------------------------------------------------------------
-C_SHAPE = np.array([[1.2, 0.9], [0.0, 1.3], [-1.2, 0.8], [-1.3, -0.6],
-                    [0.0, -1.3], [1.2, -0.9], [0.0, -0.35], [0.0, 0.35]])
+C_SHAPE = np.array(
+    [
+        [1.2, 0.9],
+        [0.0, 1.3],
+        [-1.2, 0.8],
+        [-1.3, -0.6],
+        [0.0, -1.3],
+        [1.2, -0.9],
+        [0.0, -0.35],
+        [0.0, 0.35],
+    ]
+)
 
 
 def _cardinal_bspline(x, p):
@@ -193,12 +207,18 @@ def test_bspline_matches_definition(degree):
     np.testing.assert_allclose(x, x_def, atol=1e-13)
 
 
-@pytest.mark.parametrize("curve", [
-    {"type": "bspline", "points": C_SHAPE, "degree": 3},
-    {"type": "bezier", "points": np.array([[0, 0], [2, -1], [3, 2], [0.5, 3], [-1, 1], [0, 0]], float)},
-    {"type": "ellipse", "center": np.array([1.0, -2.0]), "axes": (2.0, 0.7), "angle": 0.4},
-    circle([0.3, 0.1], 1.7),
-])
+@pytest.mark.parametrize(
+    "curve",
+    [
+        {"type": "bspline", "points": C_SHAPE, "degree": 3},
+        {
+            "type": "bezier",
+            "points": np.array([[0, 0], [2, -1], [3, 2], [0.5, 3], [-1, 1], [0, 0]], float),
+        },
+        {"type": "ellipse", "center": np.array([1.0, -2.0]), "axes": (2.0, 0.7), "angle": 0.4},
+        circle([0.3, 0.1], 1.7),
+    ],
+)
 def test_derivatives_finite_difference(curve):
     t = np.array([0.013, 0.21, 0.377, 0.52, 0.699, 0.93])  # away from knots
     h = 1e-5
@@ -230,10 +250,13 @@ def test_bezier_and_ellipse_points():
 # ---------------------------------------------------------------------------
 # one circle
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("center,r,cam", [
-    ((0.0, 0.0), 1.0, (3.0, 0.0)),
-    ((1.5, -0.7), 2.0, (1.5 + 5.0 * math.cos(2.0), -0.7 + 5.0 * math.sin(2.0))),
-])
+@pytest.mark.parametrize(
+    "center,r,cam",
+    [
+        ((0.0, 0.0), 1.0, (3.0, 0.0)),
+        ((1.5, -0.7), 2.0, (1.5 + 5.0 * math.cos(2.0), -0.7 + 5.0 * math.sin(2.0))),
+    ],
+)
 def test_circle_closed_form(center, r, cam):
     c = circle(center, r)
     cam = np.array(cam)
@@ -271,10 +294,13 @@ def test_circle_two_cameras_max():
 # ---------------------------------------------------------------------------
 # two circles: shadow
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("C,cb,R,cs,r", [
-    ((6.0, 0.0), (0.0, 0.0), 2.0, (3.5, 0.0), 0.5),
-    ((5.0, 3.0), (-0.5, 0.2), 1.5, (2.4, 1.7), 0.4),
-])
+@pytest.mark.parametrize(
+    "C,cb,R,cs,r",
+    [
+        ((6.0, 0.0), (0.0, 0.0), 2.0, (3.5, 0.0), 0.5),
+        ((5.0, 3.0), (-0.5, 0.2), 1.5, (2.4, 1.7), 0.4),
+    ],
+)
 def test_two_circles_shadow(C, cb, R, cs, r):
     length, fs, arcs = two_circle_closed_form(C, cb, R, cs, r)
     curves = [circle(cb, R), circle(cs, r)]
@@ -298,8 +324,9 @@ def test_two_circles_shadow(C, cb, R, cs, r):
 # a deep "C": outer arc of radius 1.3, inner arc of radius 0.6, mouth at +x
 _A_OUT = np.deg2rad([35, 90, 140, 180, 220, 270, 325])
 _A_IN = np.deg2rad([320, 270, 220, 180, 140, 90, 40])
-DEEP_C = np.r_[1.3 * np.c_[np.cos(_A_OUT), np.sin(_A_OUT)],
-               0.6 * np.c_[np.cos(_A_IN), np.sin(_A_IN)]]
+DEEP_C = np.r_[
+    1.3 * np.c_[np.cos(_A_OUT), np.sin(_A_OUT)], 0.6 * np.c_[np.cos(_A_IN), np.sin(_A_IN)]
+]
 
 
 @pytest.mark.parametrize("cam", [(1.6, -0.5), (2.5, 0.8)])
@@ -322,8 +349,10 @@ def test_mixed_scene_vs_brute_force():
     curves = [
         {"type": "bspline", "points": C_SHAPE * 0.8 + [0.0, 0.2], "degree": 3},
         {"type": "ellipse", "center": np.array([2.6, 1.4]), "axes": (0.5, 0.25), "angle": 0.7},
-        {"type": "bezier", "points": np.array([[2.0, -1.5], [3.4, -2.2], [3.6, -0.4],
-                                               [2.5, -0.6], [2.0, -1.5]])},
+        {
+            "type": "bezier",
+            "points": np.array([[2.0, -1.5], [3.4, -2.2], [3.6, -0.4], [2.5, -0.6], [2.0, -1.5]]),
+        },
         circle((-0.5, 2.6), 0.45),
     ]
     cams = np.array([[4.6, 0.3], [0.4, 4.2], [-3.0, -2.0]])

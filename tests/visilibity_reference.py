@@ -13,7 +13,6 @@ here. A camera exactly on the line of an edge (measure zero) counts that edge as
 from __future__ import annotations
 
 import numpy as np
-
 import visilibity as vis
 
 

@@ -1,0 +1,283 @@
+"""A scene: a set of closed curves (the objects), evaluated together."""
+
+import functools
+import math
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .curves import AbstractConic, AbstractCurve, PiecewiseCurve, UnitFrame, is_concrete
+from .validity import check_scene
+from .vec import Vec
+
+__all__ = ["Scene"]
+
+
+def _structure(curve: AbstractCurve):
+    leaves, treedef = jax.tree.flatten(curve)
+    return treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves)
+
+
+class Scene(eqx.Module):
+    """The objects x_1..x_m of a scene (Sec. 2.1), as a pytree of curves, optionally
+    inside a room.
+
+    Curves of the same type and shape are evaluated together (stacked and vmapped), so
+    a scene of many similar objects compiles to one evaluation, not one per object.
+
+    **Arguments:**
+
+    - `curves`: a sequence of curves (`BezierCurve`, `BSplineCurve`, `Circle`,
+      `PiecewiseCurve`, ...): the objects, seen from outside.
+    - `room`: optional closed curve whose inside is the free space (the walls): it
+      occludes like any object, cameras must be inside it, and it is not itself part
+      of Q (only the objects are to be seen). It is stored as the last of `curves`.
+    """
+
+    curves: tuple[AbstractCurve, ...]
+    room: bool = eqx.field(static=True)
+
+    def __init__(self, curves: Sequence[AbstractCurve], room: AbstractCurve | None = None):
+        if isinstance(curves, AbstractCurve):
+            curves = [curves]
+        curves = tuple(curves)
+        if not curves:
+            raise ValueError("A Scene needs at least one curve.")
+        if room is not None:
+            curves = (*curves, room)
+        for c in curves:
+            if not isinstance(c, AbstractCurve):
+                raise TypeError(
+                    f"Scene curves must be ocp_jax curves (BezierCurve, BSplineCurve, "
+                    f"Circle, Ellipse, PiecewiseCurve), got {type(c).__name__}."
+                )
+        if is_concrete(*jax.tree.leaves(curves)):
+            check_scene(curves, room is not None)
+        self.curves = curves
+        self.room = room is not None
+
+    @property
+    def objects(self) -> tuple[AbstractCurve, ...]:
+        """The curves that are to be seen (all but the room)."""
+        return self.curves[:-1] if self.room else self.curves
+
+    def observed(self) -> np.ndarray:
+        """Static (m,) mask of the curves that count in Q (all but the room)."""
+        return np.arange(len(self.curves)) < len(self.objects)
+
+    def sides(self) -> np.ndarray:
+        """Static (m,) signs: +1 where the free space is outside a curve, -1 inside."""
+        return np.where(self.observed(), 1.0, -1.0)
+
+    def __len__(self) -> int:
+        return len(self.curves)
+
+    @property
+    def dtype(self):
+        return jnp.result_type(*jax.tree.leaves(self.curves))
+
+    def _groups(self) -> list[list[int]]:
+        groups: dict = {}
+        for i, c in enumerate(self.curves):
+            groups.setdefault(_structure(c), []).append(i)
+        return list(groups.values())
+
+    def _stacked(self, group: list[int]) -> AbstractCurve:
+        """The curves of one group (`_groups`), stacked along a leading axis."""
+        return jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+
+    def _map(self, fn, *args):
+        """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
+        results are stacked along a leading curve axis. A curve alone in its group is
+        not vmapped (a batch of one only makes the program longer to trace)."""
+        outputs, order = [], []
+        for group in self._groups():
+            if len(group) == 1:
+                (i,) = group
+                out = fn(self.curves[i], *(a[i] for a in args))
+                outputs.append(jax.tree.map(lambda a: a[None], out))
+            else:
+                stacked = self._stacked(group)
+                rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
+                outputs.append(jax.vmap(fn)(stacked, *rows))
+            order.extend(group)
+        if len(outputs) == 1:
+            return outputs[0]
+        inverse = np.argsort(np.asarray(order))
+        return jax.tree.map(lambda *xs: jnp.concatenate(xs)[inverse], *outputs)
+
+    def _map_at(self, fn, curve, t, axis: int = 0):
+        """Apply `fn(curve_j, t_j)` at every element j of a flat list, on the curve
+        `curve[j]` (an index array (E,)) at its row t[j]; the results' element axis is
+        `axis` (as where fn is applied to all of t at once). Each group of curves of one
+        type and shape is evaluated at every element, with the element's curve's
+        parameters gathered, and the element keeps its own group's result: the cost is
+        that of the elements times the number of groups, not of the curves."""
+        groups = self._groups()
+        group_of, local = np.zeros(len(self.curves), int), np.zeros(len(self.curves), int)
+        for g, group in enumerate(groups):
+            group_of[group], local[group] = g, np.arange(len(group))
+        outputs = []
+        for group in groups:
+            if len(group) == 1:  # (all of t at once)
+                outputs.append(fn(self.curves[group[0]], t))
+            else:
+                stacked = self._stacked(group)
+                own = jax.tree.map(lambda a: a[jnp.asarray(local)[curve]], stacked)
+                outputs.append(jax.vmap(fn, out_axes=axis)(own, t))
+        if len(outputs) == 1:
+            return outputs[0]
+        group = jnp.asarray(group_of)[curve]
+
+        def select(*xs):
+            shape = [1] * xs[0].ndim
+            shape[axis] = group.shape[0]
+            mine = group.reshape(shape)
+            return functools.reduce(
+                lambda out, g: jnp.where(mine == g, xs[g], out), range(1, len(xs)), xs[0]
+            )
+
+        return jax.tree.map(select, *outputs)
+
+    def components_at(self, curve: Int[Array, " e"], t: Float[Array, "e *shape"]):
+        """x, x', x'' of curve `curve[j]` at t[j] for every element j of a flat list."""
+        return self._map_at(_components, curve, jnp.asarray(t, self.dtype))
+
+    def point_and_tangent_at(
+        self, curve: Int[Array, " e"], t: Float[Array, "e *shape"]
+    ) -> Float[Array, "4 e *shape"]:
+        """Rows (x, y, x', y') of curve `curve[j]` at t[j] for every element j of a flat
+        list (`AbstractCurve.point_and_tangent`)."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map_at(lambda c, t: c.point_and_tangent(t), curve, t, axis=1)
+
+    def components(self, t: Float[Array, "m *shape"]) -> tuple[Vec, Vec, Vec]:
+        """x_i(t[i]), x_i'(t[i]), x_i''(t[i]) for every curve i (row i of `t`), as `Vec`s."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map(_components, t)
+
+    def point_and_tangent(self, t: Float[Array, "m *shape"]) -> Float[Array, "m 4 *shape"]:
+        """Rows (x, y, x', y') of x_i(t[i]) and x_i'(t[i]) for every curve i
+        (`AbstractCurve.point_and_tangent`)."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map(lambda curve, t: curve.point_and_tangent(t), t)
+
+    def components_left(self, t: Float[Array, "m *shape"]) -> tuple[Vec, Vec, Vec]:
+        """Left limits of `components` (they differ at corners)."""
+        t = jnp.asarray(t, self.dtype)
+        return self._map(_components_left, t)
+
+    def bounds(self) -> tuple[Float[Array, "2"], Float[Array, "2"]]:
+        """The lower and upper corners of an axis-aligned box that holds every curve."""
+        lows, highs = self._map(lambda c: c.bounds())  # (m, 2) each
+        return jnp.min(lows, 0), jnp.max(highs, 0)
+
+    def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "Scene":
+        """The same scene in the coordinates (x - origin) / scale."""
+        curves = tuple(c.in_frame(origin, scale) for c in self.curves)
+        return eqx.tree_at(lambda s: s.curves, self, curves)
+
+    @property
+    def has_corners(self) -> bool:
+        return any(c.corners().size for c in self.curves)
+
+    def corners(self) -> tuple[np.ndarray, np.ndarray]:
+        """Static (m, c) arrays: every curve's corner parameters (padded with 1.0, the end
+        of [0, 1)) and which entries are corners."""
+        corners = [c.corners() for c in self.curves]
+        width = max(1, max(len(c) for c in corners))
+        times = np.ones((len(corners), width))
+        real = np.zeros((len(corners), width), bool)
+        for i, c in enumerate(corners):
+            times[i, : len(c)] = c
+            real[i, : len(c)] = True
+        return times, real
+
+    def straight(self) -> np.ndarray:
+        """Static (m,) array: which curves are polygons (straight pieces from corner to
+        corner: on a grid through the corners, the polygon of grid points is the curve)."""
+        return np.array([isinstance(c, PiecewiseCurve) and c.degree == 1 for c in self.curves])
+
+    def pieces(self, cells: int) -> np.ndarray | None:
+        """Static (m, cells) array: which smooth piece of its curve each grid cell lies
+        on (pieces run from corner to corner; the last and the first are one where t = 0
+        is no corner). None for a scene without corners (every curve one piece)."""
+        if not self.has_corners:
+            return None
+        starts = np.arange(cells) / cells
+        pieces = np.zeros((len(self.curves), cells), int)
+        for i, corners in enumerate(c.corners() for c in self.curves):
+            count = np.searchsorted(corners, starts, side="right")  # corners at or before
+            pieces[i] = count if len(corners) and corners[0] == 0 else count % max(1, len(corners))
+        return pieces
+
+    def rows(self, rows: np.ndarray) -> "Scene":
+        """The curves `rows` (static indices) as a scene of objects, for evaluating those
+        rows alone: they are curves of this checked scene, so they are not checked again."""
+        if np.array_equal(rows, np.arange(len(self.curves))) and not self.room:
+            return self
+        scene = object.__new__(Scene)
+        object.__setattr__(scene, "curves", tuple(self.curves[i] for i in rows))
+        object.__setattr__(scene, "room", False)
+        return scene
+
+    def conic(self) -> np.ndarray:
+        """Static (m,) array: which curves are conics (whose crossings of a line have
+        closed forms, `_conics.py`)."""
+        return np.array([isinstance(c, AbstractConic) for c in self.curves])
+
+    @property
+    def conics_only(self) -> bool:
+        """Whether every curve is a conic (then the events have closed forms, `_conics.py`)."""
+        return bool(self.conic().all())
+
+    def conic_frames(self) -> UnitFrame:
+        """Every curve's `AbstractConic.unit_frame`, stacked (a scene of conics only)."""
+        return self._map(lambda c: c.unit_frame())
+
+    def costly_evaluation(self) -> bool:
+        """Whether some curve is costly to evaluate (see `AbstractCurve.costly_evaluation`)."""
+        return any(c.costly_evaluation() for c in self.curves)
+
+    def grid_alignment(self) -> int:
+        """The grid cell count must be a multiple of this (the least common multiple of
+        the curves' segment counts), so that every corner is a grid node."""
+        return math.lcm(*(max(1, len(c.corners())) for c in self.curves))
+
+    def derivatives(
+        self, t: Float[Array, "m *shape"]
+    ) -> tuple[Float[Array, "m *shape 2"], Float[Array, "m *shape 2"], Float[Array, "m *shape 2"]]:
+        """x_i(t[i]), x_i'(t[i]), x_i''(t[i]) for every curve i (row i of `t`)."""
+        x, dx, ddx = self.components(t)
+        return x.stack(), dx.stack(), ddx.stack()
+
+    def grid_cells(self) -> int:
+        """Grid cells per curve for root bracketing: the finest any curve asks for,
+        rounded up to a multiple of `grid_alignment`."""
+        align = self.grid_alignment()
+        return align * -(-max(c.grid_cells() for c in self.curves) // align)
+
+    def breakpoints(self) -> Float[Array, "m b"]:
+        """Each curve's breakpoints, padded with 1 (the end of [0, 1), as the engine pads
+        its events) to a common length."""
+        points = [c.breakpoints() for c in self.curves]
+        width = max(p.shape[0] for p in points)
+        return jnp.stack([jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points])
+
+
+# A curve evaluation is hundreds of operations (a degree-18 Bezier) and Q evaluates the
+# curves at about 20 places: as jitted functions they are traced once per curve type and
+# shape of t, not at every place, which shortens tracing (XLA inlines the calls, so the
+# compiled program is the same).
+@jax.jit
+def _components(curve, t):
+    return curve.components(t)
+
+
+@jax.jit
+def _components_left(curve, t):
+    return curve.components_left(t)
