@@ -34,7 +34,8 @@ class RESULTS(eqx.Enumeration):
     )
 
 
-def where_each(pred: Bool[ArrayLike, "..."], a: eqx.Enumeration, b: eqx.Enumeration):
-    """`a` where `pred`, else `b`, element by element (`Enumeration.where` takes one
-    scalar predicate; this takes a batch, as for the results of many starts)."""
+def where_each(pred: Bool[ArrayLike, "..."], a, b):
+    """`a` where `pred`, else `b`, element by element, for items `a` and `b` of one
+    `equinox.Enumeration` (its `where` takes one scalar predicate; this takes a batch, as
+    for the results of many starts)."""
     return jax.tree.map(lambda x, y: jnp.where(pred, x, y), a, b)
