@@ -204,8 +204,14 @@ def test_bad_input():
         ocp.place(CIRCLE, vl, SQUARE, 1, solver="bfgs")
     with pytest.raises(ValueError, match="n_cameras must be a positive int"):
         ocp.place(CIRCLE, vl, SQUARE, 0)
-    with pytest.raises(ValueError, match="n_starts must be a positive int"):
+    with pytest.raises(ValueError, match="MultiStart: n_starts must be a positive int"):
         ocp.MultiStart(n_starts=0)
+    with pytest.raises(ValueError, match="SLSQP: max_steps must be a positive int"):
+        ocp.SLSQP(max_steps=0)
+    with pytest.raises(ValueError, match="Greedy: resolution must be a positive int"):
+        ocp.Greedy(resolution=2.5)
+    with pytest.raises(ValueError, match="Exhaustive: chunk must be a positive int"):
+        ocp.Exhaustive(chunk=-1)
     for solver in (ocp.MultiStart, ocp.SLSQP):  # camera positions, not boundary parameters
         with pytest.raises(ValueError, match=r"of shape \(n_starts, n_cameras=2, 1\)"):
             ocp.place(CIRCLE, vl, SQUARE, 2, solver=solver(starts=jnp.zeros((3, 2, 2))))

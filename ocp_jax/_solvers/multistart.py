@@ -147,12 +147,6 @@ class MultiStart(AbstractPlacementSolver):
     tolerance: float | None = None
     chunk: int = 4
 
-    def __check_init__(self):
-        for name in ("n_starts", "max_steps", "outer_iterations", "chunk"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"MultiStart: {name} must be a positive int, got {value!r}.")
-
     def solve(
         self, problem: Problem, n_cameras: int, key: PRNGKeyArray, progress: bool
     ) -> Solution:

@@ -3,6 +3,7 @@ the steps they share: sizing the budgets for the starts, checking given starts, 
 choosing the best admissible start."""
 
 import abc
+import dataclasses
 
 import equinox as eqx
 import jax
@@ -117,7 +118,16 @@ class Solution(eqx.Module):
 
 class AbstractPlacementSolver(eqx.Module):
     """A way to place cameras, passed to `ocp.place` as `solver=`: `MultiStart`,
-    `SLSQP`, `Greedy` or `Exhaustive`."""
+    `SLSQP`, `Greedy` or `Exhaustive`. Their integer fields (counts, sizes) must be
+    positive."""
+
+    def __check_init__(self):
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if field.type in (int, "int") and (not isinstance(value, int) or value < 1):
+                raise ValueError(
+                    f"{type(self).__name__}: {field.name} must be a positive int, got {value!r}."
+                )
 
     @abc.abstractmethod
     def solve(
@@ -157,11 +167,10 @@ def checked_starts(
 ) -> Float[Array, "s k p"]:
     """The given starts (placement parameters), checked, or `n_starts` random ones."""
     placement = problem.placement
-    sampled = placement.sample(key, n_cameras, n_starts)
     if starts is None:
-        return sampled
+        return placement.sample(key, n_cameras, n_starts)
     starts = jnp.asarray(starts, problem.scene.dtype)
-    p = sampled.shape[-1]
+    p = jax.eval_shape(lambda k: placement.sample(k, n_cameras, 1), key).shape[-1]
     if starts.ndim != 3 or starts.shape[1:] != (n_cameras, p):
         raise ValueError(
             f"ocp_jax: starts are parameters of the placement, of shape (n_starts, "

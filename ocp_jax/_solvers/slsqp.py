@@ -96,7 +96,7 @@ class SLSQP(AbstractPlacementSolver):
             finals.append(out.x.reshape(shape))
             ended.append(out.status)
             steps.append(out.nit)
-            best = max((h[2] for h in history), default=-np.inf)
+            best = history[-1][2] if history else -np.inf
             value = -float(out.fun) * float(problem.scale) if np.isfinite(out.fun) else -np.inf
             history.append((time.perf_counter() - clock, calls, max(best, value)))
             if progress:

@@ -924,10 +924,7 @@ def visibility(
 def _visibility_and_result(scene, cameras, objective, options):
     """((Q, result), needs): Q NaN where the result is not successful (no error)."""
     value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
-    invalid = jnp.any(_stacked(failures)[0])
-    overflow = jnp.any(jnp.stack([b.needed > b.budget for b in budgets] + [jnp.array(False)]))
-    result = RESULTS.where(overflow, RESULTS.budget_exceeded, RESULTS.successful)
-    result = RESULTS.where(invalid, RESULTS.invalid_cameras, result)
+    result = _outcome(failures, budgets)
     value = jnp.where(result == RESULTS.successful, value, jnp.nan)
     return (value, result), _needs(budgets)
 
@@ -1062,8 +1059,16 @@ def valid_visibility(scene, cameras, objective, options):
     `needs` says what each budget needed ({option: (needed, budget)}, see `with_grown_budgets`). For
     optimisers and searches, which must step back from such placements, not stop."""
     value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
-    failed, _ = _stacked(failures + _budget_failures(budgets))
-    return value, ~jnp.any(failed), _needs(budgets)
+    return value, _outcome(failures, budgets) == RESULTS.successful, _needs(budgets)
+
+
+def _outcome(failures, budgets: list[Budget]) -> RESULTS:
+    """How a call ends, without raising: `invalid_cameras` where an input check or a root
+    search failed, else `budget_exceeded` where a budget overflowed, else `successful`."""
+    invalid = jnp.any(_stacked(failures)[0])
+    overflow = jnp.any(jnp.stack([b.needed > b.budget for b in budgets] + [jnp.asarray(False)]))
+    result = RESULTS.where(overflow, RESULTS.budget_exceeded, RESULTS.successful)
+    return RESULTS.where(invalid, RESULTS.invalid_cameras, result)
 
 
 def signed_distances(scene: Scene, cameras: Float[Array, "k 2"], grid: int | None = None):
