@@ -68,6 +68,37 @@ def test_grid_brackets_split_near_double_roots_and_count_them():
     assert int(small.count) == 2 and np.asarray(small.candidate).sum() == 1
 
 
+def _shallow_pair(t, c):
+    """F(t) = u^2 - 1e-6 - 2 u^4, u = t - c: two roots 2e-3 apart that the cubic Hermite
+    interpolant on cells of 1/8 does not show (it lies above F by 2 s^2 (1 - s)^2 / 8^4,
+    over 1e-6 in most of a cell)."""
+    u = t - c
+    return u * u - 1e-6 - 2.0 * u**4, 2.0 * u - 8.0 * u**3, jnp.ones_like(t)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def _shallow_pair_roots(c, probed):
+    t = jnp.linspace(0.0, 1.0, 9)
+    values, slopes, _ = _shallow_pair(t, c)
+    probes = None
+    if probed:
+        probes = _roots.dip_probes(lambda t: _shallow_pair(t, c)[:2], t, values[None], slopes[None])
+    brackets = _roots.grid_brackets(t, values[None], slopes[None], 4, probes=probes)
+    roots, valid, _ = _roots.solve_roots(_shallow_pair, c, brackets, 30, 1.0, False)
+    return brackets.count, roots, valid
+
+
+@pytest.mark.parametrize("fraction", [0.3, 0.5, 0.85])
+def test_dip_probes_reveal_a_pair_the_interpolant_misses(fraction):
+    c = jnp.asarray((3 + fraction) / 8)  # in the cell [3/8, 4/8]
+    assert int(_shallow_pair_roots(c, False)[0]) == 0  # the interpolant alone misses it
+    count, roots, valid = _shallow_pair_roots(c, True)
+    half = math.sqrt((1 - math.sqrt(1 - 8e-6)) / 4)  # u^2 = (1 - sqrt(1 - 8e-6)) / 4
+    assert int(count) == 2
+    got = np.sort(np.asarray(roots)[np.asarray(valid)])
+    np.testing.assert_allclose(got, [float(c) - half, float(c) + half], rtol=0, atol=1e-13)
+
+
 def test_materialize_is_the_identity_with_an_identity_derivative():
     tree = {
         "a": Vec(jnp.arange(3.0), jnp.arange(3.0) + 10),

@@ -27,7 +27,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._geometry.vec import Vec, add, cross, dot, norm, sub
 from .jvp import is_zero, perturbed_jvp
-from .roots import cell_ends, first_true, grid_brackets, solve_roots
+from .roots import cell_ends, dip_probes, first_true, grid_brackets, solve_roots
 from .xla_cpu import fused_reduce, materialize
 
 
@@ -798,26 +798,29 @@ def crossover_times(
     groups' q are equal there), so the Leibniz terms of the two intervals that meet at it
     cancel (Eq. 5.9); the cut only keeps the kink out of the quadrature."""
     scene, objective, ga, gb = jax.lax.stop_gradient((scene, objective, group_a, group_b))
+    # Only the observed curves' crossovers cut Q's intervals: none are searched for on
+    # the room's walls.
+    observed = jnp.asarray(scene.observed())[:, None, None]
 
-    def values_and_slopes(dx, ddx):
-        values, slopes, scale = crossover_terms(objective, ga, gb, samples.x, dx, ddx)
+    def resolved(values, slopes, scale):
         # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
-        # q) either camera is the best one: count the node as just positive (by more
-        # than the Hermite interpolant of the noise can dip), so that rounding noise
-        # brackets no roots.
+        # q) either camera is the best one: count F as just positive (by more than the
+        # Hermite interpolant of the noise can dip), so that rounding noise brackets no
+        # roots.
         rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
         values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
-        # Only the observed curves' crossovers cut Q's intervals: none are searched for
-        # on the room's walls.
-        observed = jnp.asarray(scene.observed())[:, None]
-        values, slopes = jnp.where(observed, values, 1.0), jnp.where(observed, slopes, 0.0)
-        return values[:, None], slopes[:, None]
+        return jnp.where(observed, values, 1.0), jnp.where(observed, slopes, 0.0)
+
+    def values_and_slopes(dx, ddx):
+        terms = crossover_terms(objective, ga, gb, samples.x, dx, ddx)
+        return resolved(*(a[:, None] for a in terms))
 
     # Values on the grid from the sampled derivatives (no new curve evaluations).
     nodes = samples.at_nodes(values_and_slopes)
     values, slopes = nodes if samples.dx_end is None else zip(*nodes)
-    brackets = grid_brackets(samples.t, values, slopes, budget)
     args = (scene, ga, gb, objective)
+    probes = dip_probes(lambda t: resolved(*crossover_function(t, args)), samples.t, values, slopes)
+    brackets = grid_brackets(samples.t, values, slopes, budget, probes=probes)
     t, valid, settled = solve_roots(
         crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
     )

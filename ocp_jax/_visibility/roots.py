@@ -74,6 +74,53 @@ def _hermite_coefficients(f0, f1, d0, d1, h):
     return a1, a2, a3
 
 
+def _toward_zero(a2, a3, s, f0):
+    """Whether p turns back toward zero at its extremum s: p''(s) of the sign of f0."""
+    return (3.0 * a3 * s + a2) * f0 > 0
+
+
+def dip_probes(fn, t_nodes, values, slopes):
+    """Probes (`grid_brackets`) for pairs of roots closer together than the grid resolves.
+
+    Where the cubic Hermite interpolant p of F turns back toward zero inside a cell whose
+    ends have one sign (a minimum between positive ends), but not across it, F may still
+    cross twice near there: the pair straddles F's extremum, however close together the
+    roots are. The probe is that extremum, from one Newton step on F' (exact at p's
+    extremum s, with p'' for F''), and F there. F', F'' and F of the pair's extremum are
+    resolved by the grid even where the dip is too shallow for p to show.
+
+    **Arguments:**
+
+    - `fn`: `fn(t) -> (F, F')` at the times t, an array like a cell's (*batch, lines, N).
+    - `t_nodes`, `values`, `slopes`: the grid and F, F' at its nodes, as `grid_brackets`
+      takes them.
+
+    **Returns:**
+
+    `grid_brackets`' probes: (fraction of each cell, F there or NaN where p does not turn
+    back toward zero in the cell).
+    """
+    f0, f1 = cell_ends(values)
+    d0, d1 = cell_ends(slopes)
+    h = jnp.broadcast_to(jnp.diff(t_nodes, axis=-1), f0.shape)
+    start = jnp.broadcast_to(t_nodes[..., :-1], f0.shape)
+    a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
+    disc = 4.0 * a2 * a2 - 12.0 * a3 * a1  # of p'(s) = 3 a3 s^2 + 2 a2 s + a1
+    first, second = quadratic_roots(3.0 * a3, 2.0 * a2, a1, jnp.maximum(disc, 0.0))
+    s = jnp.where(_toward_zero(a2, a3, first, f0), first, second)
+    dips = (disc >= 0) & (f0 * f1 > 0) & (s > 0) & (s < 1) & _toward_zero(a2, a3, s, f0)
+    s = jnp.where(dips, s, 0.5)
+    value, slope = fn(start + h * s)
+    # t -> t - F' / F'' with F'' = p''(s) / h^2, in fractions of the cell
+    step = slope * h / safe_divisor(6.0 * a3 * s + 2.0 * a2)
+    refined = jnp.clip(s - step, 0.0, 1.0)
+    refined_value, _ = fn(start + h * refined)
+    # of the two, the one nearer to (or beyond) zero
+    better = refined_value * f0 < value * f0
+    at = jnp.where(better, refined, s)
+    return at, jnp.where(dips, jnp.where(better, refined_value, value), jnp.nan)
+
+
 def hermite_extremum(f0, f1, d0, d1, h):
     """The extremum of the cubic Hermite interpolant p on each cell that can show a pair
     of roots, as a fraction s in [0, 1] of the cell, and p there (`turning`): where F'
@@ -91,7 +138,7 @@ def hermite_extremum(f0, f1, d0, d1, h):
     one = d0 * d1 < 0  # exactly one root of p' in (0, 1)
     first_in = (first >= 0) & (first <= 1)
     # Of two: p's minimum where f0 > 0 (p'' > 0 there), its maximum where f0 < 0.
-    dips = (3.0 * a3 * first + a2) * f0 > 0
+    dips = _toward_zero(a2, a3, first, f0)
     s = jnp.clip(jnp.where(jnp.where(one, first_in, dips), first, second), 0.0, 1.0)
     value = p(s)
     # (p' of one sign at both ends has 0 or 2 roots in (0, 1): with one, the other too;
