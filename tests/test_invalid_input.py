@@ -1,7 +1,10 @@
 """Invalid input and exceeded budgets: clear errors, also under jit."""
 
 import functools
+import json
 import math
+import subprocess
+import sys
 
 import helpers as H
 import jax
@@ -72,30 +75,92 @@ def test_camera_just_inside_a_curve_raises():
 @pytest.mark.parametrize(
     "cameras,match",
     [
-        (np.zeros((2, 3)), r"cameras must have shape \(k, 2\)"),
+        # (lists: an array of another shape than (k, 2) is outside the annotation)
+        (np.zeros((2, 3)).tolist(), r"cameras must have shape \(k, 2\)"),
         (np.zeros((0, 2)), r"k >= 1"),
-        (np.zeros((1, 2, 2)), r"cameras must have shape \(k, 2\)"),
+        (np.zeros((1, 2, 2)).tolist(), r"cameras must have shape \(k, 2\)"),
     ],
 )
 def test_cameras_with_wrong_shape_raise(cameras, match):
     with pytest.raises(ValueError, match=match):
-        ocp.visibility(H.THREE, jnp.asarray(cameras))
+        ocp.visibility(H.THREE, cameras)
     with pytest.raises(ValueError, match=match):
-        ocp.visible_intervals(H.THREE, jnp.asarray(cameras))
+        ocp.visible_intervals(H.THREE, cameras)
 
 
-def test_not_a_scene_raises():
-    cams = jnp.array([[5.0, 4.0]])
-    for bad in (list(H.THREE.curves), H.THREE.curves[1], np.zeros((4, 2))):
-        with pytest.raises(TypeError, match="scene must be an ocp_jax.Scene"):
-            ocp.visibility(bad, cams)
-        with pytest.raises(TypeError, match="scene must be an ocp_jax.Scene"):
-            ocp.visible_intervals(bad, cams)
+# Arguments outside their annotations, which this suite's runtime type checker (jaxtyping
+# with beartype) rejects before the library's own checks: a user's session has no such
+# checker, so they run in a subprocess, all in one.
+WRONG_TYPES = {
+    "a float B-spline degree": (
+        "ocp.BSplineCurve([[0, 0], [1, 0], [1, 1], [0, 1]], degree=2.5)",
+        "ValueError: BSplineCurve degree must be an integer >= 2",
+    ),
+    "an array among a scene's curves": (
+        "ocp.Scene([circle, np.zeros((4, 2))])",
+        "TypeError: Scene curves must be ocp_jax curves",
+    ),
+    "a list of curves for a scene": (
+        "ocp.visibility([circle], [[3.0, 0.0]])",
+        "TypeError: scene must be an ocp_jax.Scene",
+    ),
+    "a curve for a scene": (
+        "ocp.visible_intervals(circle, [[3.0, 0.0]])",
+        "TypeError: scene must be an ocp_jax.Scene",
+    ),
+    "a number for an objective": (
+        "ocp.visibility(ocp.Scene([circle]), [[3.0, 0.0]], 3.0)",
+        "TypeError: objective must be a local objective",
+    ),
+    "a float grid": (
+        "ocp.VisibilityOptions(grid=64.0)",
+        "ValueError: VisibilityOptions.grid must be a positive int",
+    ),
+    "a float interval budget": (
+        "ocp.VisibilityOptions(max_camera_intervals=1.5)",
+        "ValueError: VisibilityOptions.max_camera_intervals must be a positive int",
+    ),
+    "no placement": (
+        "ocp.place(ocp.Scene([circle]), ocp.VisibleLength(), None, 1)",
+        "TypeError: ocp_jax.place: `placement` says where cameras may go",
+    ),
+    "a string for a solver": (
+        "ocp.place(ocp.Scene([circle]), ocp.VisibleLength(), square, 1, solver='bfgs')",
+        "TypeError: ocp_jax.place: `solver` is one of",
+    ),
+    "a float resolution": (
+        "ocp.Greedy(resolution=2.5)",
+        "ValueError: Greedy: resolution must be a positive int",
+    ),
+}
 
 
-def test_bad_objective_raises():
-    with pytest.raises(TypeError, match="objective must be a local objective"):
-        ocp.visibility(H.THREE, jnp.array([[5.0, 4.0]]), 3.0)
+@pytest.fixture(scope="module")
+def wrong_type_errors() -> dict[str, str]:
+    """'Type: message' of each call of WRONG_TYPES, run without a type checker."""
+    code = (
+        "import json, numpy as np, ocp_jax as ocp\n"
+        "circle = ocp.Circle([0.0, 0.0], 1.0)\n"
+        "square = ocp.RectangleBoundary([0.0, 0.0], 4.0, 4.0)\n"
+        "errors = {}\n"
+        "for case, call in json.loads(input()).items():\n"
+        "    try:\n"
+        "        eval(call)\n"
+        "        errors[case] = 'no error'\n"
+        "    except Exception as e:\n"
+        "        errors[case] = f'{type(e).__name__}: {e}'\n"
+        "print(json.dumps(errors))\n"
+    )
+    calls = json.dumps({case: call for case, (call, _) in WRONG_TYPES.items()})
+    done = subprocess.run(
+        [sys.executable, "-c", code], input=calls, capture_output=True, text=True, check=True
+    )
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+@pytest.mark.parametrize("case", WRONG_TYPES)
+def test_wrong_types_get_the_library_message(case, wrong_type_errors):
+    assert wrong_type_errors[case].startswith(WRONG_TYPES[case][1]), wrong_type_errors[case]
 
 
 def test_exceeded_shadow_budget_raises():
@@ -248,8 +313,6 @@ def test_curve_points_derivative_is_the_tangent_and_the_control_point_jvp():
     [
         ({"grid": 3}, "grid must be >= 8"),
         ({"max_intervals": 0}, "max_intervals must be a positive int"),
-        ({"max_camera_intervals": 1.5}, "max_camera_intervals must be a positive int"),
-        ({"grid": 64.0}, "grid must be a positive int"),
         ({"max_tangents": 0}, "max_tangents must be a positive int"),
         ({"max_shadows": -2}, "max_shadows must be a positive int"),
         ({"quadrature": 0}, "quadrature must be a positive int"),

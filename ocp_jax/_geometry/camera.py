@@ -11,11 +11,13 @@ and no object blocks the open segment (C, x). Position-only cameras are the case
 `half_fov = None, range = None` and run exactly the position-only computation.
 """
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from .curves import is_concrete, to_frame
 
@@ -55,10 +57,10 @@ class Camera(eqx.Module):
 
     def __init__(
         self,
-        position: Float[ArrayLike, "*k 2"],
-        heading: Float[ArrayLike, "*k"] = 0.0,
-        half_fov: Float[ArrayLike, "*k"] | None = None,
-        range: Float[ArrayLike, "*k"] | None = None,
+        position: Real[ArrayLike, "*k 2"] | Sequence,
+        heading: Real[ArrayLike, "*k"] | Sequence = 0.0,
+        half_fov: Real[ArrayLike, "*k"] | Sequence | None = None,
+        range: Real[ArrayLike, "*k"] | Sequence | None = None,
     ):
         position = jnp.asarray(position)
         if not jnp.issubdtype(position.dtype, jnp.floating):

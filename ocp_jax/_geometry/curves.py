@@ -9,6 +9,7 @@ them is differentiable with respect to the curve's parameters too.
 
 import abc
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -16,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Real
 
 from .vec import Vec, add, scale
 
@@ -146,7 +147,7 @@ class AbstractCurve(eqx.Module):
         return np.zeros(0)
 
     def derivatives(
-        self, t: Float[ArrayLike, "*shape"]
+        self, t: Real[ArrayLike, "*shape"]
     ) -> tuple[Float[Array, "*shape 2"], Float[Array, "*shape 2"], Float[Array, "*shape 2"]]:
         """(x(t), x'(t), x''(t)), each of shape `t.shape + (2,)`."""
         x, dx, ddx = self.components(jnp.asarray(t, self.dtype))
@@ -179,14 +180,14 @@ class AbstractCurve(eqx.Module):
         cost more than the repeated arithmetic (static)."""
         return False
 
-    def __call__(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
+    def __call__(self, t: Real[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
         return self.derivatives(t)[0]
 
-    def tangent(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
+    def tangent(self, t: Real[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
         """x'(t)."""
         return self.derivatives(t)[1]
 
-    def normal(self, t: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
+    def normal(self, t: Real[ArrayLike, "*shape"]) -> Float[Array, "*shape 2"]:
         """n(t) = [[0, -1], [1, 0]] x'(t) (Eq. 2.3): outward for a clockwise curve."""
         dx = self.tangent(t)
         return jnp.stack([-dx[..., 1], dx[..., 0]], -1)
@@ -259,7 +260,7 @@ class BezierCurve(AbstractCurve):
 
     control_points: Float[Array, "n 2"]
 
-    def __init__(self, control_points: Float[ArrayLike, "n 2"]):
+    def __init__(self, control_points: Real[ArrayLike, "n 2"] | Sequence):
         self.control_points = _as_points(control_points, "BezierCurve control_points", 4)
 
     def bounds(self):
@@ -302,7 +303,7 @@ class BezierCurve(AbstractCurve):
         return self.degree >= 8
 
     @classmethod
-    def closed_c2(cls, points: Float[ArrayLike, "m 2"]) -> "BezierCurve":
+    def closed_c2(cls, points: Real[ArrayLike, "m 2"] | Sequence) -> "BezierCurve":
         """A closed Bezier curve that is C2 at the seam, from m >= 3 free points.
 
         `points = [S, Q_2, ..., Q_{n-2}]`: S is the seam point P_0 = P_n and the Q are the
@@ -389,7 +390,7 @@ class BSplineCurve(AbstractCurve):
     control_points: Float[Array, "n 2"]
     degree: int = eqx.field(static=True)
 
-    def __init__(self, control_points: Float[ArrayLike, "n 2"], degree: int = 3):
+    def __init__(self, control_points: Real[ArrayLike, "n 2"] | Sequence, degree: int = 3):
         if int(degree) != degree or degree < 2:
             raise ValueError(f"BSplineCurve degree must be an integer >= 2, got {degree}.")
         self.degree = int(degree)
@@ -506,7 +507,7 @@ class Circle(AbstractConic):
     center: Float[Array, "2"]
     radius: Float[Array, ""]
 
-    def __init__(self, center: Float[ArrayLike, "2"], radius: Float[ArrayLike, ""]):
+    def __init__(self, center: Real[ArrayLike, "2"] | Sequence, radius: Real[ArrayLike, ""]):
         center = jnp.asarray(center)  # (a list has no dtype to promote)
         self.center = jnp.asarray(center, jnp.result_type(center, float))
         self.radius = jnp.asarray(radius, self.center.dtype)
@@ -548,9 +549,9 @@ class Ellipse(AbstractConic):
 
     def __init__(
         self,
-        center: Float[ArrayLike, "2"],
-        semi_axes: Float[ArrayLike, "2"],
-        angle: Float[ArrayLike, ""] = 0.0,
+        center: Real[ArrayLike, "2"] | Sequence,
+        semi_axes: Real[ArrayLike, "2"] | Sequence,
+        angle: Real[ArrayLike, ""] = 0.0,
     ):
         center = jnp.asarray(center)  # (a list has no dtype to promote)
         self.center = jnp.asarray(center, jnp.result_type(center, float))
@@ -620,7 +621,7 @@ class PiecewiseCurve(AbstractCurve):
 
     points: Float[Array, "n d 2"]
 
-    def __init__(self, points: Float[ArrayLike, "n d 2"]):
+    def __init__(self, points: Real[ArrayLike, "n d 2"] | Sequence):
         points = jnp.asarray(points)
         if not jnp.issubdtype(points.dtype, jnp.floating):
             points = points.astype(jnp.result_type(float))
@@ -661,7 +662,7 @@ class PiecewiseCurve(AbstractCurve):
         return self.points.shape[0]
 
     @classmethod
-    def polygon(cls, vertices: Float[ArrayLike, "n 2"]) -> "PiecewiseCurve":
+    def polygon(cls, vertices: Real[ArrayLike, "n 2"] | Sequence) -> "PiecewiseCurve":
         """The closed polygon through `vertices` (n >= 3, not repeated at the end), its
         edges split as in `from_segments`."""
         vertices = _as_points(vertices, "PiecewiseCurve.polygon vertices", 3)
@@ -694,7 +695,11 @@ class PiecewiseCurve(AbstractCurve):
 
     @classmethod
     def rounded_rectangle(
-        cls, center: Float[ArrayLike, "2"], width: float, height: float, radius: float
+        cls,
+        center: Real[ArrayLike, "2"] | Sequence,
+        width: float,
+        height: float,
+        radius: float,
     ) -> "PiecewiseCurve":
         """An axis-aligned rectangle with corners rounded by quarter circles of `radius`
         (cubic Bezier arcs, kappa = 4 (sqrt 2 - 1) / 3; relative radius error 3e-4):

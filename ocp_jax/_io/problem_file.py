@@ -94,6 +94,12 @@ class PlacementProblem(NamedTuple):
     objective: AbstractLocalObjective
 
 
+def _real(value: Any) -> float | np.ndarray:
+    """A field's number as a float, its list of numbers as a float array."""
+    array = np.asarray(value, float)
+    return float(array) if array.ndim == 0 else array
+
+
 def _build(entry: Any, kinds: dict, where: str):
     if not isinstance(entry, dict) or "type" not in entry:
         raise ValueError(f'{where} must be an object with a "type" ({", ".join(kinds)}).')
@@ -113,11 +119,10 @@ def _build(entry: Any, kinds: dict, where: str):
     if "objective" in fields:
         fields["objective"] = _objective(fields["objective"], f"{where}.objective")
     try:
-        arrays = {
-            k: v if k in (*INTEGER_FIELDS, "objective") else np.asarray(v, float)
-            for k, v in fields.items()
+        values = {
+            k: v if k in (*INTEGER_FIELDS, "objective") else _real(v) for k, v in fields.items()
         }
-        return cls(**arrays)
+        return cls(**values)
     except (ValueError, TypeError) as error:
         raise ValueError(f"{where} ({kind}): {error}") from None
 

@@ -13,14 +13,14 @@ baselines) and reports how far given cameras are from the set (`violations`).
 """
 
 import abc
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray, Real
 
 from .._geometry.camera import Camera
 from .._geometry.curves import is_concrete
@@ -84,7 +84,9 @@ class AbstractPlacement(eqx.Module):
         """Each camera's distance from the parametrised set (0 on it)."""
         return jnp.zeros(cameras.shape[:1], cameras.dtype)
 
-    def violations(self, cameras: Float[ArrayLike, "k 2"], scene=None) -> Float[Array, " k"]:
+    def violations(
+        self, cameras: Real[ArrayLike, "k 2"] | Sequence | Camera, scene=None
+    ) -> Float[Array, " k"]:
         """Per camera: its distance from the parametrised set plus the largest breach of
         its `constraints` (checked only when `scene` is given); 0 for an admissible
         camera."""
@@ -98,7 +100,9 @@ class AbstractPlacement(eqx.Module):
             worst = worst + jnp.max(breach, axis=1, initial=0.0)
         return worst
 
-    def violation(self, cameras: Float[ArrayLike, "k 2"], scene=None) -> Float[Array, ""]:
+    def violation(
+        self, cameras: Real[ArrayLike, "k 2"] | Sequence | Camera, scene=None
+    ) -> Float[Array, ""]:
         """The largest of `violations`."""
         return jnp.max(self.violations(cameras, scene))
 
@@ -182,7 +186,7 @@ class AbstractBoundary(AbstractPlacement):
     def distances(self, cameras):
         return jnp.min(_segment_distances(cameras, self.vertices()), axis=1)
 
-    def arc_fraction(self, cameras: Float[ArrayLike, "k 2"]) -> Float[Array, " k"]:
+    def arc_fraction(self, cameras: Real[ArrayLike, "k 2"] | Sequence) -> Float[Array, " k"]:
         """The parameter s in [0, 1) of each camera's nearest point of the chain (the
         inverse of `cameras` on the chain)."""
         cameras = jnp.atleast_2d(jnp.asarray(cameras, float))
@@ -206,7 +210,7 @@ class PolygonBoundary(AbstractBoundary):
 
     corners: Float[Array, "n 2"]
 
-    def __init__(self, corners: Float[ArrayLike, "n 2"]):
+    def __init__(self, corners: Real[ArrayLike, "n 2"] | Sequence):
         self.corners = _check_polygon(corners, "PolygonBoundary corners")
 
     def vertices(self):
@@ -229,7 +233,12 @@ class RectangleBoundary(AbstractBoundary):
     width: Float[Array, ""]
     height: Float[Array, ""]
 
-    def __init__(self, center: Float[ArrayLike, "2"], width: float, height: float):
+    def __init__(
+        self,
+        center: Real[ArrayLike, "2"] | Sequence,
+        width: Real[ArrayLike, ""],
+        height: Real[ArrayLike, ""],
+    ):
         self.center = jnp.asarray(center, float)
         self.width = jnp.asarray(width, float)
         self.height = jnp.asarray(height, float)
@@ -298,7 +307,9 @@ class FreePlacement(AbstractPlacement):
     lower: Float[Array, "2"]
     upper: Float[Array, "2"]
 
-    def __init__(self, lower: Float[ArrayLike, "2"], upper: Float[ArrayLike, "2"]):
+    def __init__(
+        self, lower: Real[ArrayLike, "2"] | Sequence, upper: Real[ArrayLike, "2"] | Sequence
+    ):
         self.lower, self.upper = _check_box(lower, upper, "FreePlacement")
 
     def cameras(self, params):
@@ -335,9 +346,9 @@ class Region(AbstractPlacement):
 
     def __init__(
         self,
-        lower: Float[ArrayLike, "2"],
-        upper: Float[ArrayLike, "2"],
-        polygon: Float[ArrayLike, "n 2"] | None = None,
+        lower: Real[ArrayLike, "2"] | Sequence,
+        upper: Real[ArrayLike, "2"] | Sequence,
+        polygon: Real[ArrayLike, "n 2"] | Sequence | None = None,
         clearance: float = 0.0,
     ):
         self.lower, self.upper = _check_box(lower, upper, "Region")
@@ -423,8 +434,8 @@ class EqualityConstraint(AbstractPlacement):
     def __init__(
         self,
         g: Callable,
-        lower: Float[ArrayLike, "2"],
-        upper: Float[ArrayLike, "2"],
+        lower: Real[ArrayLike, "2"] | Sequence,
+        upper: Real[ArrayLike, "2"] | Sequence,
         per_camera: bool = True,
     ):
         if not callable(g):

@@ -1,5 +1,7 @@
 """`place`: the one entry point for placing cameras, whatever the solver."""
 
+from collections.abc import Callable
+
 import jax
 from jaxtyping import PRNGKeyArray
 
@@ -13,7 +15,7 @@ from .problem import AbstractPlacementSolver, Problem, Solution, scene_length
 
 def place(
     scene: Scene,
-    objective: AbstractLocalObjective,
+    objective: AbstractLocalObjective | Callable,
     placement: AbstractPlacement,
     n_cameras: int,
     *,

@@ -91,10 +91,10 @@ class Solution(eqx.Module):
       steps (`MultiStart`; for constrained placements -L times the best augmented-
       Lagrangian merit), start (`SLSQP`), stage (`Greedy`) or chunk of sets
       (`Exhaustive`): the anytime curve.
-    - `paths` (n + 1, s, k, p): every start's parameters at the start and after each
-      chunk (`placement.cameras` maps them to positions; `plot.plot_optimization`).
-      None for the discrete searches.
-    - `candidates` (n, r) and `stage_values`: the discrete searches' admissible
+    - `paths` (m, s, k, p): every start's parameters at the start and after each chunk
+      (`MultiStart`, m = n + 1) or at its end (`SLSQP`, m = 2); `placement.cameras` maps
+      them to positions (`plot.plot_optimization`). None for the discrete searches.
+    - `candidates` (c, r) and `stage_values`: the discrete searches' admissible
       candidates (positions, or pose rows [x, y, heading, half_fov?, range?]) and Q
       over the candidates at each greedy stage (the thesis's Fig. 5.5); None for the
       continuous solvers.
@@ -111,8 +111,8 @@ class Solution(eqx.Module):
     seconds: float
     violation: float
     history: Float[Array, "n 3"]
-    paths: Float[Array, "n s k p"] | None
-    candidates: Float[Array, "n r"] | None
+    paths: Float[Array, "m s k p"] | None
+    candidates: Float[Array, "c r"] | None
     stage_values: tuple[Array, ...] | None
 
 

@@ -148,9 +148,10 @@ def _grazing(value, start, end, depth, reach):
     return (value * start < 0) & (value * end < 0) & (depth > 0) & (depth < reach)
 
 
-def facing(camera: Vec, sense: Float[Array, "*q"], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "*q"]:
+def facing(camera: Vec, sense: Float[Array, "..."], x_mid: Vec, dx_mid: Vec) -> Bool[Array, "..."]:
     """Whether the free side of each query point faces the camera (`sense`: that of each
-    point's curve); a point facing away is hidden by its own object."""
+    point's curve, broadcast against the points); a point facing away is hidden by its
+    own object."""
     return sense * cross(dx_mid, sub(x_mid, camera)) > 0
 
 

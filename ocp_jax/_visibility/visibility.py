@@ -24,6 +24,7 @@ import functools
 import itertools
 import math
 import warnings
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -31,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from .._geometry.camera import Camera
 from .._geometry.curves import to_frame
@@ -860,8 +861,8 @@ def _is_traced(*trees) -> bool:
 
 def visibility(
     scene: Scene,
-    cameras: Float[ArrayLike, "k 2"] | Camera,
-    objective: AbstractLocalObjective = Foreshortened(),
+    cameras: Real[ArrayLike, "k 2"] | Sequence | Camera,
+    objective: AbstractLocalObjective | Callable = Foreshortened(),
     options: VisibilityOptions = VisibilityOptions(),
     *,
     throw: bool = True,
@@ -893,11 +894,12 @@ def visibility(
     item (`successful`, `invalid_cameras` or `budget_exceeded`) and Q is NaN where it is
     not `successful` (so are its derivatives: select on `result`, not on Q).
 
-    Raises (also under jit, via `equinox.error_if`) when a camera is NaN, inside an object
-    or on a curve. Called outside any transformation, a call whose events overflow the
-    budgets of `options` is compiled again with budgets that hold them
-    (`fit_options`), with a warning; inside a jit, grad or vmap an overflow raises an
-    error that names the option (size the budgets beforehand with `fit_options`).
+    Raises a ValueError that names the cause when a camera is NaN, inside an object or on
+    a curve (inside a jit, grad or vmap, through `equinox.error_if`). Called outside any
+    transformation, a call whose events overflow the budgets of `options` is compiled
+    again with budgets that hold them (`fit_options`), with a warning; inside a jit, grad
+    or vmap an overflow raises an error that names the option (size the budgets
+    beforehand with `fit_options`).
     """
     cameras = _as_input(cameras)
     traced = _is_traced(scene, cameras, objective)
@@ -912,12 +914,12 @@ def visibility(
         return value_and_result
     if traced:
         return _visibility(scene, cameras, objective, options)
-    value, _ = with_grown_budgets(
+    (value, checks), _ = with_grown_budgets(
         lambda o: _visibility_and_needs(scene, cameras, objective, o),
         lambda o: fit_options(scene, cameras, objective, o),
         options,
     )
-    return value
+    return _raised(value, checks)
 
 
 @eqx.filter_jit
@@ -937,9 +939,22 @@ def _visibility(scene, cameras, objective, options):
 
 @eqx.filter_jit
 def _visibility_and_needs(scene, cameras, objective, options):
-    """Q with the input checked, and what each budget needed ({option: (needed, budget)})."""
+    """(Q, the input checks' (failed, messages)) and what each budget needed ({option:
+    (needed, budget)}): for calls outside any jit, which raise on the host (`_raised`)."""
     value, failures, budgets = _value_and_checks(scene, cameras, objective, options)
-    return _checked(value, *_stacked(failures)), _needs(budgets)
+    return (value, _stacked(failures)), _needs(budgets)
+
+
+def _raised(result, checks):
+    """`result`, or a ValueError with the first failed check's message, raised on the host.
+
+    Calls outside any jit check here rather than with `equinox.error_if`, whose host
+    callback keeps a program out of JAX's persistent compilation cache."""
+    failed, messages = checks
+    failed = np.asarray(failed)
+    if failed.any():
+        raise ValueError(messages[int(np.argmax(failed))])
+    return result
 
 
 def _needs(budgets: list[Budget]) -> dict[str, tuple[Array, Array]]:
@@ -988,7 +1003,7 @@ def _grown_options(options: "VisibilityOptions", needs, headroom: float = 1.0):
 def fit_options(
     scene: Scene,
     cameras,
-    objective: AbstractLocalObjective = Foreshortened(),
+    objective: AbstractLocalObjective | Callable = Foreshortened(),
     options: VisibilityOptions = VisibilityOptions(),
     headroom: float = 1.0,
 ) -> VisibilityOptions:
@@ -1114,7 +1129,7 @@ class VisibleIntervals(eqx.Module):
 
 def visible_intervals(
     scene: Scene,
-    cameras: Float[ArrayLike, "k 2"] | Camera,
+    cameras: Real[ArrayLike, "k 2"] | Sequence | Camera,
     options: VisibilityOptions = VisibilityOptions(),
 ) -> VisibleIntervals:
     """The parameter arcs of every curve that each camera sees (occlusions included).
@@ -1123,19 +1138,20 @@ def visible_intervals(
     """
     cameras = _as_input(cameras)
     if _is_traced(scene, cameras):
-        return _visible_intervals(scene, cameras, options, True)[0]
-    intervals, _ = with_grown_budgets(
+        (intervals, checks), _ = _visible_intervals(scene, cameras, options, True)
+        return eqx.tree_at(lambda i: i.start, intervals, _checked(intervals.start, *checks))
+    (intervals, checks), _ = with_grown_budgets(
         lambda o: _visible_intervals(scene, cameras, o, False),
         lambda o: fit_options(scene, cameras, VisibleLength(), o),
         options,
     )
-    return intervals
+    return _raised(intervals, checks)
 
 
 @eqx.filter_jit
 def _visible_intervals(scene, cameras, options, check_budgets: bool):
-    """The intervals, with the input checked (and the budgets, where `check_budgets`),
-    and what each budget needed."""
+    """(The intervals, the input checks' (failed, messages), with the budgets' where
+    `check_budgets`), and what each budget needed."""
     _, scene, poses = _in_scene_frame(scene, cameras)
     events = _events(scene, poses, VisibleLength(), options)
     partitions = events.partitions
@@ -1144,8 +1160,7 @@ def _visible_intervals(scene, cameras, options, check_budgets: bool):
     budgets = _budgets(scene, events, options)
     if check_budgets:
         failures += _budget_failures(budgets)
-    start = _checked(start, *_stacked(failures))
     intervals = VisibleIntervals(
         start, end, partitions.visible, partitions.tangents, partitions.shadows
     )
-    return intervals, _needs(budgets)
+    return (intervals, _stacked(failures)), _needs(budgets)
