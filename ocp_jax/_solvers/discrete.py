@@ -145,7 +145,6 @@ class Greedy(AbstractPlacementSolver):
 
     **Arguments:**
 
-
     - `resolution`: candidates per edge (boundaries) or per axis (regions).
     - `chunk`: camera sets per compiled batch.
     """
@@ -183,7 +182,6 @@ class Exhaustive(AbstractPlacementSolver):
     a time.
 
     **Arguments:**
-
 
     - `resolution`: candidates per edge (boundaries) or per axis (regions).
     - `chunk`: camera sets per compiled batch.

@@ -128,7 +128,6 @@ class MultiStart(AbstractPlacementSolver):
 
     **Arguments:**
 
-
     - `minimiser`: an optimistix minimiser (default `optx.BFGS(rtol=1e-9, atol=1e-9)`).
     - `n_starts`: random starts from `placement.sample`; or `starts`, placement
       parameters of shape (s, k, p), to start from given places.

@@ -33,7 +33,6 @@ def place(
 
     **Arguments:**
 
-
     - `scene`, `objective`: what is seen and how it is valued (as for `visibility`).
     - `placement`: where cameras may go (`RectangleBoundary`, `PolygonBoundary`,
       `Region`, `FreePlacement`, `EqualityConstraint`, `DirectionalPlacement`).

@@ -470,7 +470,6 @@ def _best_group(scene: Scene, curve, start, end, members, objective, seen):
 
     **Arguments:**
 
-
     - `members`: the groups' cameras, one `Vec` of shape (G,) per member.
     - `seen`: (G, e), whether each group sees each interval.
 
@@ -878,7 +877,6 @@ def visibility(
 
     **Arguments:**
 
-
     - `scene`: the objects.
     - `cameras`: camera positions, shape (k, 2) (or (2,) for one camera), or
       directional poses, a `Camera` batched over (k,).
@@ -1020,7 +1018,6 @@ def fit_options(
     of a scene with many objects.
 
     **Arguments:**
-
 
     - `scene`, `objective`, `options`: as for `visibility`.
     - `cameras`: one camera set, positions (k, 2) or a `Camera` batched over (k,), or a
