@@ -74,6 +74,15 @@ def _hermite_coefficients(f0, f1, d0, d1, h):
     return a1, a2, a3
 
 
+def _critical_points(f0, f1, d0, d1, h):
+    """The cubic Hermite interpolant's coefficients (`_hermite_coefficients`), the
+    discriminant of p'(s) = 3 a3 s^2 + 2 a2 s + a1 and its two roots (real parts)."""
+    a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
+    disc = 4.0 * a2 * a2 - 12.0 * a3 * a1
+    first, second = quadratic_roots(3.0 * a3, 2.0 * a2, a1, jnp.maximum(disc, 0.0))
+    return (a1, a2, a3), disc, first, second
+
+
 def _toward_zero(a2, a3, s, f0):
     """Whether p turns back toward zero at its extremum s: p''(s) of the sign of f0."""
     return (3.0 * a3 * s + a2) * f0 > 0
@@ -104,9 +113,7 @@ def dip_probes(fn, t_nodes, values, slopes):
     d0, d1 = cell_ends(slopes)
     h = jnp.broadcast_to(jnp.diff(t_nodes, axis=-1), f0.shape)
     start = jnp.broadcast_to(t_nodes[..., :-1], f0.shape)
-    a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
-    disc = 4.0 * a2 * a2 - 12.0 * a3 * a1  # of p'(s) = 3 a3 s^2 + 2 a2 s + a1
-    first, second = quadratic_roots(3.0 * a3, 2.0 * a2, a1, jnp.maximum(disc, 0.0))
+    (_, a2, a3), disc, first, second = _critical_points(f0, f1, d0, d1, h)
     s = jnp.where(_toward_zero(a2, a3, first, f0), first, second)
     dips = (disc >= 0) & (f0 * f1 > 0) & (s > 0) & (s < 1) & _toward_zero(a2, a3, s, f0)
     s = jnp.where(dips, s, 0.5)
@@ -128,9 +135,7 @@ def hermite_extremum(f0, f1, d0, d1, h):
     sign at both ends, dipping between: a pair right beside a root of F'), the one where
     p has the sign opposite to f0, if either has (both cannot, for ends of one sign).
     Elsewhere s = 1 and the value is f1."""
-    a1, a2, a3 = _hermite_coefficients(f0, f1, d0, d1, h)
-    A, B, c = 3.0 * a3, 2.0 * a2, a1  # p'(s) = A s^2 + B s + c
-    first, second = quadratic_roots(A, B, c, jnp.maximum(B * B - 4.0 * A * c, 0.0))
+    (a1, a2, a3), _, first, second = _critical_points(f0, f1, d0, d1, h)
 
     def p(s):
         return ((a3 * s + a2) * s + a1) * s + f0
