@@ -53,6 +53,11 @@ MIXED_FLOOR_CASES = {  # floor (seed, cells, objects, kinds), cameras (count, se
     # on the ellipse the two cameras' q cross twice 3e-3 apart, inside one grid cell
     # whose Hermite interpolant of q_a - q_b does not dip across zero
     "a pair of crossovers inside one cell": ((3236, 10, 5, ocp.scenes.FURNITURE), (2, 3036, 0.3)),
+    # two of the six cameras' q cross on a polygon edge whose far end is a corner, where
+    # q jumps (the next edge's normal); around a pair of crossovers 1e-3 apart on an
+    # edge, q_a - q_b peaks far more sharply than a cubic on its grid cell
+    "a crossover beside a corner, 6 cameras": ((5204, 4, 2, ocp.scenes.FURNITURE), (6, 5004, 0.3)),
+    "a sharp pair of crossovers, 5 cameras": ((5200, 7, 2, ocp.scenes.FURNITURE), (5, 5000, 0.3)),
 }
 
 

@@ -76,27 +76,65 @@ def _shallow_pair(t, c):
     return u * u - 1e-6 - 2.0 * u**4, 2.0 * u - 8.0 * u**3, jnp.ones_like(t)
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def _shallow_pair_roots(c, probed):
+def _sharp_peak(t, c):
+    """F(t) = 1e-4 - u^2 / (u^2 + w^2), u = t - c, w = 3e-3: a peak 40 times narrower than
+    a cell of 1/8, far from any cubic there, with two roots 6e-5 apart."""
+    u, w2 = t - c, 9e-6
+    r = u * u + w2
+    return 1e-4 - u * u / r, -2.0 * u * w2 / (r * r), jnp.ones_like(t)
+
+
+DIP_CASES = {  # F, half the distance between its two roots
+    "shallow quartic": (_shallow_pair, math.sqrt((1 - math.sqrt(1 - 8e-6)) / 4)),
+    "sharp peak": (_sharp_peak, 3e-3 * math.sqrt(1e-4 / (1 - 1e-4))),
+}
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def _dip_pair_roots(fn, c, probed):
     t = jnp.linspace(0.0, 1.0, 9)
-    values, slopes, _ = _shallow_pair(t, c)
+    values, slopes, _ = fn(t, c)
     probes = None
     if probed:
-        probes = _roots.dip_probes(lambda t: _shallow_pair(t, c)[:2], t, values[None], slopes[None])
+        probes = _roots.dip_probes(lambda t: fn(t, c)[:2], t, values[None], slopes[None])
     brackets = _roots.grid_brackets(t, values[None], slopes[None], 4, probes=probes)
-    roots, valid, _ = _roots.solve_roots(_shallow_pair, c, brackets, 30, 1.0, False)
+    roots, valid, _ = _roots.solve_roots(fn, c, brackets, 30, 1.0, False)
     return brackets.count, roots, valid
 
 
-@pytest.mark.parametrize("fraction", [0.3, 0.5, 0.85])
-def test_dip_probes_reveal_a_pair_the_interpolant_misses(fraction):
+@pytest.mark.parametrize("fraction", [0.2, 0.5, 0.85])
+@pytest.mark.parametrize("case", DIP_CASES)
+def test_dip_probes_reveal_a_pair_the_interpolant_misses(case, fraction):
+    fn, half = DIP_CASES[case]
     c = jnp.asarray((3 + fraction) / 8)  # in the cell [3/8, 4/8]
-    assert int(_shallow_pair_roots(c, False)[0]) == 0  # the interpolant alone misses it
-    count, roots, valid = _shallow_pair_roots(c, True)
-    half = math.sqrt((1 - math.sqrt(1 - 8e-6)) / 4)  # u^2 = (1 - sqrt(1 - 8e-6)) / 4
+    assert int(_dip_pair_roots(fn, c, False)[0]) == 0  # the interpolant alone misses it
+    count, roots, valid = _dip_pair_roots(fn, c, True)
     assert int(count) == 2
     got = np.sort(np.asarray(roots)[np.asarray(valid)])
     np.testing.assert_allclose(got, [float(c) - half, float(c) + half], rtol=0, atol=1e-13)
+
+
+def _cusp_cell(t, _):
+    """On [0, 1): the cubic Hermite p with p(0) = 1, p'(0) = 0, p(1) = -0.01, p'(1) = 5,
+    whose Newton steps from regula falsi leave the cell at its end; on [1, 2]: 1, a jump
+    at the node 1 (the next piece of a curve with a corner)."""
+    left = t < 1.0
+    value = jnp.where(left, 1.0 - 8.03 * t**2 + 7.02 * t**3, 1.0)
+    slope = jnp.where(left, -16.06 * t + 21.06 * t**2, 0.0)
+    return value, slope, jnp.ones_like(t)
+
+
+def test_a_bracket_ending_at_a_jump_finds_the_root_inside():
+    t = jnp.asarray([0.0, 1.0, 2.0])
+    right = (jnp.asarray([[1.0, 1.0, 1.0]]), jnp.asarray([[0.0, 0.0, 0.0]]))
+    left = (jnp.asarray([[1.0, -0.01, 1.0]]), jnp.asarray([[0.0, 5.0, 0.0]]))
+    brackets = _roots.grid_brackets(t, (right[0], left[0]), (right[1], left[1]), 2)
+    assert int(brackets.count) == 1
+    roots, valid, settled = _roots.solve_roots(_cusp_cell, None, brackets, 30, 1.0, False)
+    exact = [r.real for r in np.roots([7.02, -8.03, 0.0, 1.0]) if 0 < r.real < 1 and not r.imag]
+    got = np.asarray(roots)[np.asarray(valid)]
+    assert bool(settled) and len(exact) == 1
+    np.testing.assert_allclose(got, exact, rtol=0, atol=1e-14)
 
 
 def test_materialize_is_the_identity_with_an_identity_derivative():

@@ -33,6 +33,11 @@ from jaxtyping import Array, Bool, Float, Int
 from .jvp import perturbed_jvp
 from .xla_cpu import materialize
 
+# `dip_probes`: the most regula falsi steps, and the bracket (a fraction of the cell)
+# narrow enough to stop.
+DIP_ITERATIONS = 48
+DIP_TOLERANCE = 1e-7
+
 
 class Brackets(NamedTuple):
     """Packed root brackets, shape (..., R) each."""
@@ -94,9 +99,14 @@ def dip_probes(fn, t_nodes, values, slopes):
     Where the cubic Hermite interpolant p of F turns back toward zero inside a cell whose
     ends have one sign (a minimum between positive ends), but not across it, F may still
     cross twice near there: the pair straddles F's extremum, however close together the
-    roots are. The probe is that extremum, from one Newton step on F' (exact at p's
-    extremum s, with p'' for F''), and F there. F', F'' and F of the pair's extremum are
-    resolved by the grid even where the dip is too shallow for p to show.
+    roots are. The probe is that extremum, and F there. F' changes sign at it, which the
+    grid resolves even where the dip is too shallow (or too sharp) for p to show: from
+    p's extremum s, F' at s and at the cell's ends bracket it, and the Illinois variant of
+    regula falsi on F' narrows the bracket until F there has the sign opposite to the
+    ends (a pair revealed) or the bracket is below `DIP_TOLERANCE` of the cell (a pair
+    missed then is closer together than that, and changes Q by less than rounding).
+    Where F' does not change sign across the bracket (p has two extrema in the cell and
+    F' at s is of the ends' sign), F(s) is the probe.
 
     **Arguments:**
 
@@ -118,14 +128,49 @@ def dip_probes(fn, t_nodes, values, slopes):
     dips = (disc >= 0) & (f0 * f1 > 0) & (s > 0) & (s < 1) & _toward_zero(a2, a3, s, f0)
     s = jnp.where(dips, s, 0.5)
     value, slope = fn(start + h * s)
-    # t -> t - F' / F'' with F'' = p''(s) / h^2, in fractions of the cell
-    step = slope * h / safe_divisor(6.0 * a3 * s + 2.0 * a2)
-    refined = jnp.clip(s - step, 0.0, 1.0)
-    refined_value, _ = fn(start + h * refined)
-    # of the two, the one nearer to (or beyond) zero
-    better = refined_value * f0 < value * f0
-    at = jnp.where(better, refined, s)
-    return at, jnp.where(dips, jnp.where(better, refined_value, value), jnp.nan)
+    # g = F' sign(f0) rises through zero at the dip's extremum
+    sign = jnp.where(f0 > 0, 1.0, -1.0)
+    g, g0, g1 = slope * sign, d0 * sign, d1 * sign
+    left = g < 0  # the extremum lies right of s
+    lo, g_lo = jnp.where(left, s, 0.0), jnp.where(left, g, g0)
+    hi, g_hi = jnp.where(left, 1.0, s), jnp.where(left, g1, g)
+
+    def revealed(value):
+        return value * f0 < 0
+
+    def done(lo, g_lo, hi, g_hi, value):
+        narrow = hi - lo <= DIP_TOLERANCE
+        return ~dips | revealed(value) | narrow | ~((g_lo < 0) & (g_hi > 0))
+
+    def running(carry):
+        i, *state = carry
+        return (i < DIP_ITERATIONS) & ~jnp.all(done(*state[:4], state[6]))
+
+    def step(carry):
+        i, lo, g_lo, hi, g_hi, last_left, at, best = carry
+        finished = done(lo, g_lo, hi, g_hi, best)
+        x = (lo * g_hi - hi * g_lo) / safe_divisor(g_hi - g_lo)
+        # (strictly inside: at the cell's end F is the next piece's where x' jumps)
+        x = jnp.where((x > lo) & (x < hi), x, 0.5 * (lo + hi))
+        value, slope = fn(start + h * x)
+        better = ~finished & (value * f0 < best * f0)
+        at, best = jnp.where(better, x, at), jnp.where(better, value, best)
+        g = slope * sign
+        left = g < 0
+        # x replaces the end of g's sign (both where g = 0: done); Illinois: the g of an
+        # end kept twice in a row is halved
+        new = (
+            jnp.where(g <= 0, x, lo),
+            jnp.where(left, g, jnp.where(last_left, g_lo, 0.5 * g_lo)),
+            jnp.where(g >= 0, x, hi),
+            jnp.where(left, jnp.where(last_left, 0.5 * g_hi, g_hi), g),
+        )
+        old = (lo, g_lo, hi, g_hi)
+        return i + 1, *(jnp.where(finished, a, b) for a, b in zip(old, new)), left, at, best
+
+    carry = (0, lo, g_lo, hi, g_hi, left, s, value)
+    *_, at, value = jax.lax.while_loop(running, step, carry)
+    return at, jnp.where(dips, value, jnp.nan)
 
 
 def hermite_extremum(f0, f1, d0, d1, h):
@@ -340,7 +385,10 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
     """
     # Each array of the state is a carry of its own: one stacked carry launches fewer
     # kernels per step, but under vmap XLA then evaluates F once per stacked row.
-    lo, hi, t = brackets.lo, brackets.hi, brackets.guess
+    # The iterates stay below hi: at a cell's end t evaluates the next piece of a curve
+    # with corners (the right limit), whose sign says nothing about this bracket.
+    lo, hi = brackets.lo, brackets.hi
+    t = jnp.where(brackets.guess < hi, brackets.guess, 0.5 * (lo + hi))
     confirmed = ~brackets.turning
     # An interpolated bracket's end at the cubic's extremum has a predicted sign only:
     # its root is confirmed by an iterate of the sign opposite to that at the bracket's
@@ -361,7 +409,7 @@ def newton_in_brackets(fn, args, brackets: Brackets, iterations: int, store: boo
         lo = jnp.where(same, t, lo)
         hi = jnp.where(same, hi, t)
         newton = t - value / safe_divisor(slope)
-        inside = (newton >= lo) & (newton <= hi)
+        inside = (newton >= lo) & (newton < hi)
         # A step of a few ulps out of the bracket is rounding noise of F at its root
         # (XLA may round F differently where the sign test and the step use it): stay.
         moved = jnp.abs(newton - t)
