@@ -143,8 +143,8 @@ def dip_probes(fn, t_nodes, values, slopes):
         return ~dips | revealed(value) | narrow | ~((g_lo < 0) & (g_hi > 0))
 
     def running(carry):
-        i, *state = carry
-        return (i < DIP_ITERATIONS) & ~jnp.all(done(*state[:4], state[6]))
+        i, lo, g_lo, hi, g_hi, _, _, best = carry
+        return (i < DIP_ITERATIONS) & ~jnp.all(done(lo, g_lo, hi, g_hi, best))
 
     def step(carry):
         i, lo, g_lo, hi, g_hi, last_left, at, best = carry
