@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .curves import AbstractConic, AbstractCurve, PiecewiseCurve, UnitFrame, is_concrete
-from .validity import check_scene
+from .validity import check_scene, checked_under_trace
 from .vec import Vec
 
 __all__ = ["Scene"]
@@ -28,6 +28,11 @@ class Scene(eqx.Module):
 
     Curves of the same type and shape are evaluated together (stacked and vmapped), so
     a scene of many similar objects compiles to one evaluation, not one per object.
+
+    The curves must form a valid scene: each simple, no two crossing, touching or
+    nested, all inside the room. Built from concrete arrays, an invalid scene raises a
+    ValueError that names the curves and a point near the fault; built from traced
+    arrays (under `jit`, `vmap` or `grad`), its program raises when it runs.
 
     **Arguments:**
 
@@ -57,6 +62,8 @@ class Scene(eqx.Module):
                 )
         if is_concrete(*jax.tree.leaves(curves)):
             check_scene(curves, room is not None)
+        else:  # built from traced arrays: refused when the program runs
+            curves = checked_under_trace(curves, room is not None)
         self.curves = curves
         self.room = room is not None
 

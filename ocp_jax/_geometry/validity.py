@@ -1,4 +1,4 @@
-"""What makes a scene valid, checked where it is built from concrete arrays.
+"""What makes a scene valid, checked where it is built.
 
 A valid scene's curves are simple closed curves (none crosses itself), no two objects
 cross, touch or nest, every object lies strictly inside the room (where there is one), and
@@ -11,31 +11,45 @@ distance from the arc's midpoint to the chord times 1.5 (a conservative bound fo
 that turn by little per chord). Two chords count as meeting when they come closer than
 the sum of their sags plus 1e-9 of the scene's size: touching counts as crossing, and
 curves closer than their chords can resolve are refused rather than misjudged.
+
+A scene built from concrete arrays is checked on the host (`check_scene`), with a message
+that names the curves and a point near the fault. A scene built from traced arrays (under
+`jit`, `vmap` or `grad`, say while a shape is optimised) is checked by the same tests in
+the traced program (`checked_under_trace`): every pair of chords, no box prefilter, and
+`equinox.branched_error_if` names the curves (a point cannot enter its static message).
 """
 
+import functools
+
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Bool
 
-__all__ = ["check_scene", "inside_polygon"]
+__all__ = ["check_scene", "checked_under_trace", "inside_polygon"]
 
 _REFINE = 8  # chords per grid cell of a curved piece
 
 
-def _polyline(curve) -> tuple[np.ndarray, np.ndarray]:
+def _polyline(curve, xp=np):
     """Vertices (n, 2) of a closed polyline through `curve` (not repeated at the end) and
-    each chord's sag bound (n,), chord j from vertex j to j + 1."""
+    each chord's sag bound (n,), chord j from vertex j to j + 1; NumPy arrays, or traced
+    ones where `xp` is `jax.numpy`."""
     points = getattr(curve, "points", None)
     if points is not None and points.shape[1] == 1:  # a polygon: exact
-        vertices = np.asarray(points[:, 0], float)
-        return vertices, np.zeros(len(vertices))
+        vertices = points[:, 0] if xp is jnp else np.asarray(points[:, 0], float)
+        return vertices, xp.zeros(len(vertices), vertices.dtype)
     n = _REFINE * curve.grid_cells()
-    with jax.ensure_compile_time_eval():
-        t = jnp.arange(2 * n) / (2 * n)
-        x = np.asarray(_points(curve, t.astype(curve.dtype)), float)
+    t = (jnp.arange(2 * n) / (2 * n)).astype(curve.dtype)
+    if xp is jnp:
+        x = curve(t)
+    else:
+        with jax.ensure_compile_time_eval():
+            x = np.asarray(_points(curve, t), float)
     vertices, middles = x[0::2], x[1::2]
-    ends = np.roll(vertices, -1, axis=0)
-    return vertices, 1.5 * _point_segment_distance(middles, vertices, ends)
+    ends = xp.roll(vertices, -1, axis=0)
+    return vertices, 1.5 * _point_segment_distance(middles, vertices, ends, xp)
 
 
 @jax.jit  # (compiled once per curve type and shape, not dispatched op by op)
@@ -43,19 +57,19 @@ def _points(curve, t):
     return curve(t)
 
 
-def _point_segment_distance(p, a, b):
+def _point_segment_distance(p, a, b, xp=np):
     ab = b - a
-    length2 = np.sum(ab * ab, -1)
-    s = np.clip(np.sum((p - a) * ab, -1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    return np.linalg.norm(p - (a + s[..., None] * ab), axis=-1)
+    length2 = xp.sum(ab * ab, -1)
+    s = xp.clip(xp.sum((p - a) * ab, -1) / xp.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    return xp.linalg.norm(p - (a + s[..., None] * ab), axis=-1)
 
 
-def _segment_distances(a0, a1, b0, b1):
-    """Distances between the segments [a0, a1] and [b0, b1], pair by pair (arrays (n, 2)),
-    0 where they cross."""
+def _segment_distances(a0, a1, b0, b1, xp=np):
+    """Distances between the segments [a0, a1] and [b0, b1], pair by pair (arrays (..., 2)
+    that broadcast), 0 where they cross."""
 
     def orient(p, q, r):
-        return np.sign(
+        return xp.sign(
             (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
             - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
         )
@@ -63,21 +77,23 @@ def _segment_distances(a0, a1, b0, b1):
     crossing = (orient(a0, a1, b0) * orient(a0, a1, b1) < 0) & (
         orient(b0, b1, a0) * orient(b0, b1, a1) < 0
     )
-    ends = np.minimum(
-        np.minimum(_point_segment_distance(a0, b0, b1), _point_segment_distance(a1, b0, b1)),
-        np.minimum(_point_segment_distance(b0, a0, a1), _point_segment_distance(b1, a0, a1)),
+    distance = functools.partial(_point_segment_distance, xp=xp)
+    ends = xp.minimum(
+        xp.minimum(distance(a0, b0, b1), distance(a1, b0, b1)),
+        xp.minimum(distance(b0, a0, a1), distance(b1, a0, a1)),
     )
-    return np.where(crossing, 0.0, ends)
+    return xp.where(crossing, 0.0, ends)
 
 
-def inside_polygon(points, polygon) -> np.ndarray:
-    """Whether each point lies inside the closed polygon (even-odd rule)."""
-    a, b = polygon[None], np.roll(polygon, -1, axis=0)[None]
+def inside_polygon(points, polygon, xp=np):
+    """Whether each point (n, 2) lies inside the closed polygon (v, 2) (even-odd rule);
+    NumPy, or `jax.numpy` as `xp`."""
+    a, b = polygon[None], xp.roll(polygon, -1, axis=0)[None]
     px, py = points[:, None, 0], points[:, None, 1]
     straddles = (a[..., 1] > py) != (b[..., 1] > py)
-    dy = np.where(b[..., 1] == a[..., 1], 1.0, b[..., 1] - a[..., 1])
+    dy = xp.where(b[..., 1] == a[..., 1], 1.0, b[..., 1] - a[..., 1])
     crosses = straddles & (px < a[..., 0] + (py - a[..., 1]) * (b[..., 0] - a[..., 0]) / dy)
-    return np.count_nonzero(crosses, axis=1) % 2 == 1
+    return xp.count_nonzero(crosses, axis=1) % 2 == 1
 
 
 def _meet(line_a, line_b, tolerance, same: bool = False):
@@ -107,30 +123,55 @@ def _meet(line_a, line_b, tolerance, same: bool = False):
     return i[first], j[first]
 
 
-def _zero_length_edge(curve) -> int | None:
-    points = getattr(curve, "points", None)
-    if points is None:
+def _zero_length_edges(curve, xp=np):
+    """Whether each segment of a piecewise curve has all its control points equal ((n,)
+    booleans), or None for other curves."""
+    if getattr(curve, "points", None) is None:
         return None
-    control = np.asarray(curve.control_points, float)  # (n, d + 1, 2)
-    extent = np.ptp(control, axis=1).max(-1)
-    return int(np.argmax(extent == 0)) if np.any(extent == 0) else None
+    control = curve.control_points if xp is jnp else np.asarray(curve.control_points, float)
+    return xp.ptp(control, axis=1).max(-1) == 0  # control: (n, d + 1, 2)
+
+
+def _zero_length_edge(curve) -> int | None:
+    zero = _zero_length_edges(curve)
+    return int(np.argmax(zero)) if zero is not None and np.any(zero) else None
+
+
+_REFUSALS = {
+    "zero": "{a} has an edge of zero length{near}: remove the repeated vertex.",
+    "self": "{a} crosses or touches itself{near}: a curve must be a simple closed curve.",
+    "meet": "{a} and {b} cross or touch{near}: objects must be apart from each other and "
+    "from the room's walls.",
+    "outside": "{a} lies outside the room{near}: every object must be inside it.",
+    "nest": "{a} lies inside {b}: objects must not nest (model a hole as part of one "
+    "object's outline).",
+}
+
+
+def _refusal(kind: str, curves, room: bool, a: int, b: int = 0, near: str = "") -> str:
+    """The message of a fault of `kind` (`_REFUSALS`) between curves a and b."""
+
+    def name(i):
+        return "the room" if room and i == len(curves) - 1 else f"curve {i}"
+
+    return "ocp_jax: " + _REFUSALS[kind].format(a=name(a), b=name(b), near=near)
+
+
+def _at(point) -> str:
+    return str(np.round(np.asarray(point), 6).tolist())
 
 
 def check_scene(curves, room: bool) -> None:
     """Raise a ValueError that names the curves and the place where `curves` (the last
     one the room where `room`) do not form a valid scene (see the module's docstring)."""
 
-    def name(i):
-        return "the room" if room and i == len(curves) - 1 else f"curve {i}"
+    def refuse(kind, a, b=0, near=""):
+        raise ValueError(_refusal(kind, curves, room, a, b, near))
 
     for i, curve in enumerate(curves):
         edge = _zero_length_edge(curve)
         if edge is not None:
-            raise ValueError(
-                f"ocp_jax: {name(i)} has an edge of zero length (segment {edge}, at "
-                f"{np.asarray(curve.control_points[edge, 0]).tolist()}): remove the repeated "
-                "vertex."
-            )
+            refuse("zero", i, near=f" (segment {edge}, at {_at(curve.control_points[edge, 0])})")
     lines = [_polyline(c) for c in curves]
     size = max(np.ptp(np.concatenate([v for v, _ in lines]), axis=0).max(), 1e-300)
     tolerance = 1e-9 * size
@@ -138,11 +179,7 @@ def check_scene(curves, room: bool) -> None:
     for i, line in enumerate(lines):
         hit = _meet(line, line, tolerance, same=True)
         if hit is not None:
-            raise ValueError(
-                f"ocp_jax: {name(i)} crosses or touches itself near "
-                f"{np.round(line[0][hit[0]], 6).tolist()}: a curve must be a simple closed "
-                "curve."
-            )
+            refuse("self", i, near=f" near {_at(line[0][hit[0]])}")
     objects = len(curves) - 1 if room else len(curves)
     for i in range(objects):
         for j in range(i + 1, len(curves)):
@@ -151,23 +188,78 @@ def check_scene(curves, room: bool) -> None:
             )
             hit = _meet(lines[i], lines[j], tolerance) if overlap else None
             if hit is not None:
-                where = np.round(lines[i][0][hit[0]], 6).tolist()
-                raise ValueError(
-                    f"ocp_jax: {name(i)} and {name(j)} cross or touch near {where}: objects "
-                    "must be apart from each other and from the room's walls."
-                )
+                refuse("meet", i, j, near=f" near {_at(lines[i][0][hit[0]])}")
             vi, vj = lines[i][0], lines[j][0]
             if room and j == len(curves) - 1:
                 if not inside_polygon(vi[:1], vj)[0]:
-                    raise ValueError(
-                        f"ocp_jax: {name(i)} lies outside the room (near "
-                        f"{np.round(vi[0], 6).tolist()}): every object must be inside it."
-                    )
+                    refuse("outside", i, near=f" (near {_at(vi[0])})")
             elif overlap:
                 # (curves that do not meet nest where one vertex of one is inside the other)
                 for inner, outer in ((i, j), (j, i)):
                     if inside_polygon(lines[inner][0][:1], lines[outer][0])[0]:
-                        raise ValueError(
-                            f"ocp_jax: {name(inner)} lies inside {name(outer)}: objects must "
-                            "not nest (model a hole as part of one object's outline)."
-                        )
+                        refuse("nest", inner, outer)
+
+
+def _meetings(lines, tolerance) -> Bool[Array, "m m"]:
+    """Traced: whether some chord of curve a comes closer to some chord of curve b than
+    their sags plus `tolerance` (on the diagonal: two chords of one curve that are not
+    neighbours). Every pair of chords is measured, one chord against all at a time."""
+    m = len(lines)
+    counts = np.array([len(s) for _, s in lines])
+    curve = jnp.asarray(np.repeat(np.arange(m), counts))
+    local = jnp.asarray(np.concatenate([np.arange(n) for n in counts]))
+    count = jnp.asarray(np.repeat(counts, counts))
+    starts = jnp.concatenate([v for v, _ in lines])
+    ends = jnp.concatenate([jnp.roll(v, -1, axis=0) for v, _ in lines])
+    sags = jnp.concatenate([s for _, s in lines])
+
+    def against_all(chord):  # (m,) whether this chord meets each curve
+        a0, a1, sag, i, k, n = chord
+        gap = jnp.abs(local - k)
+        neighbour = (curve == i) & (jnp.minimum(gap, n - gap) <= 1)
+        near = _segment_distances(a0[None], a1[None], starts, ends, jnp) <= sag + sags + tolerance
+        return jnp.zeros(m, bool).at[curve].max(near & ~neighbour)
+
+    chords = (starts, ends, sags, curve, local, count)
+    per_chord = jax.lax.map(against_all, chords, batch_size=64)  # (N, m)
+    return jnp.zeros((m, m), bool).at[curve].max(per_chord)
+
+
+def checked_under_trace(curves: tuple, room: bool) -> tuple:
+    """`curves` (the last one the room where `room`) with the checks of `check_scene`
+    attached by `equinox.branched_error_if` to their first array: for a scene built from
+    traced arrays, refused when the program runs. The error names the first fault in the
+    order: a zero-length edge, a curve crossing itself, two curves that meet, an object
+    outside the room, nested objects."""
+    m = len(curves)
+    objects = m - 1 if room else m
+    faults, messages = [], []
+
+    def fault(flag, kind, a, b=0):
+        faults.append(flag)
+        messages.append(_refusal(kind, curves, room, a, b))
+
+    for i, curve in enumerate(curves):
+        zero = _zero_length_edges(curve, jnp)
+        if zero is not None:
+            fault(jnp.any(zero), "zero", i)
+    lines = [_polyline(c, jnp) for c in curves]
+    vertices = jnp.concatenate([v for v, _ in lines])
+    size = jnp.maximum(jnp.ptp(vertices, axis=0).max(), 1e-300)
+    meets = _meetings(lines, 1e-9 * size)
+    for i in range(m):
+        fault(meets[i, i], "self", i)
+    for i in range(objects):
+        for j in range(i + 1, m):
+            fault(meets[i, j] | meets[j, i], "meet", i, j)
+    for i in range(objects):
+        first = lines[i][0][:1]
+        if room:
+            fault(~inside_polygon(first, lines[-1][0], jnp)[0], "outside", i)
+        for j in range(objects):
+            if j != i:
+                fault(inside_polygon(first, lines[j][0], jnp)[0], "nest", i, j)
+    found = jnp.stack(faults)
+    leaves, treedef = jax.tree.flatten(curves)
+    leaves[0] = eqx.branched_error_if(leaves[0], jnp.any(found), jnp.argmax(found), messages)
+    return jax.tree.unflatten(treedef, leaves)
