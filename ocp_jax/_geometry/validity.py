@@ -20,6 +20,8 @@ the traced program (`checked_under_trace`): every pair of chords, no box prefilt
 """
 
 import functools
+import itertools
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -85,14 +87,20 @@ def _segment_distances(a0, a1, b0, b1, xp=np):
     return xp.where(crossing, 0.0, ends)
 
 
-def inside_polygon(points, polygon, xp=np):
-    """Whether each point (n, 2) lies inside the closed polygon (v, 2) (even-odd rule);
-    NumPy, or `jax.numpy` as `xp`."""
-    a, b = polygon[None], xp.roll(polygon, -1, axis=0)[None]
+def _ray_crossings(points, a, b, xp=np):
+    """Whether the ray from each point (n, 2) in the direction +x crosses each edge from
+    a to b (arrays (e, 2)): booleans (n, e), the terms of the even-odd rule."""
+    a, b = a[None], b[None]
     px, py = points[:, None, 0], points[:, None, 1]
     straddles = (a[..., 1] > py) != (b[..., 1] > py)
     dy = xp.where(b[..., 1] == a[..., 1], 1.0, b[..., 1] - a[..., 1])
-    crosses = straddles & (px < a[..., 0] + (py - a[..., 1]) * (b[..., 0] - a[..., 0]) / dy)
+    return straddles & (px < a[..., 0] + (py - a[..., 1]) * (b[..., 0] - a[..., 0]) / dy)
+
+
+def inside_polygon(points, polygon, xp=np):
+    """Whether each point (n, 2) lies inside the closed polygon (v, 2) (even-odd rule);
+    NumPy, or `jax.numpy` as `xp`."""
+    crosses = _ray_crossings(points, polygon, xp.roll(polygon, -1, axis=0), xp)
     return xp.count_nonzero(crosses, axis=1) % 2 == 1
 
 
@@ -200,29 +208,58 @@ def check_scene(curves, room: bool) -> None:
                         refuse("nest", inner, outer)
 
 
-def _meetings(lines, tolerance) -> Bool[Array, "m m"]:
-    """Traced: whether some chord of curve a comes closer to some chord of curve b than
-    their sags plus `tolerance` (on the diagonal: two chords of one curve that are not
+class _Chords(NamedTuple):
+    """Every curve's polyline (`_polyline`) as one list of N chords, traced."""
+
+    starts: Array  # (N, 2)
+    ends: Array  # (N, 2)
+    sags: Array  # (N,)
+    curve: Array  # (N,) the chord's curve
+    local: Array  # (N,) its index on that curve
+    count: Array  # (N,) the number of chords of that curve
+
+    @classmethod
+    def of(cls, lines) -> "_Chords":
+        counts = np.array([len(s) for _, s in lines])
+        return cls(
+            jnp.concatenate([v for v, _ in lines]),
+            jnp.concatenate([jnp.roll(v, -1, axis=0) for v, _ in lines]),
+            jnp.concatenate([s for _, s in lines]),
+            jnp.asarray(np.repeat(np.arange(len(lines)), counts)),
+            jnp.asarray(np.concatenate([np.arange(n) for n in counts])),
+            jnp.asarray(np.repeat(counts, counts)),
+        )
+
+
+def _meetings(chords: _Chords, m: int, tolerance) -> Bool[Array, "m m"]:
+    """Whether some chord of curve a comes closer to some chord of curve b than their
+    sags plus `tolerance` (on the diagonal: two chords of one curve that are not
     neighbours). Every pair of chords is measured, one chord against all at a time."""
-    m = len(lines)
-    counts = np.array([len(s) for _, s in lines])
-    curve = jnp.asarray(np.repeat(np.arange(m), counts))
-    local = jnp.asarray(np.concatenate([np.arange(n) for n in counts]))
-    count = jnp.asarray(np.repeat(counts, counts))
-    starts = jnp.concatenate([v for v, _ in lines])
-    ends = jnp.concatenate([jnp.roll(v, -1, axis=0) for v, _ in lines])
-    sags = jnp.concatenate([s for _, s in lines])
+    c = chords
 
     def against_all(chord):  # (m,) whether this chord meets each curve
         a0, a1, sag, i, k, n = chord
-        gap = jnp.abs(local - k)
-        neighbour = (curve == i) & (jnp.minimum(gap, n - gap) <= 1)
-        near = _segment_distances(a0[None], a1[None], starts, ends, jnp) <= sag + sags + tolerance
-        return jnp.zeros(m, bool).at[curve].max(near & ~neighbour)
+        gap = jnp.abs(c.local - k)
+        neighbour = (c.curve == i) & (jnp.minimum(gap, n - gap) <= 1)
+        distance = _segment_distances(a0[None], a1[None], c.starts, c.ends, jnp)
+        near = distance <= sag + c.sags + tolerance
+        return jnp.zeros(m, bool).at[c.curve].max(near & ~neighbour)
 
-    chords = (starts, ends, sags, curve, local, count)
-    per_chord = jax.lax.map(against_all, chords, batch_size=64)  # (N, m)
-    return jnp.zeros((m, m), bool).at[curve].max(per_chord)
+    per_chord = jax.lax.map(against_all, tuple(chords), batch_size=64)  # (N, m)
+    return jnp.zeros((m, m), bool).at[c.curve].max(per_chord)
+
+
+def _insides(points, chords: _Chords, m: int) -> Bool[Array, "n m"]:
+    """Whether each point (n, 2) lies inside each curve's polyline (even-odd rule)."""
+    crosses = _ray_crossings(points, chords.starts, chords.ends, jnp).astype(jnp.int32)
+    counts = jnp.zeros((len(points), m), jnp.int32).at[:, chords.curve].add(crosses)
+    return counts % 2 == 1
+
+
+def _pairs(pairs) -> tuple[np.ndarray, np.ndarray]:
+    """Static index arrays (a, b) of pairs of curves (empty where there are none)."""
+    a, b = np.reshape(np.asarray(list(pairs), int), (-1, 2)).T
+    return a, b
 
 
 def checked_under_trace(curves: tuple, room: bool) -> tuple:
@@ -235,31 +272,29 @@ def checked_under_trace(curves: tuple, room: bool) -> tuple:
     objects = m - 1 if room else m
     faults, messages = [], []
 
-    def fault(flag, kind, a, b=0):
-        faults.append(flag)
-        messages.append(_refusal(kind, curves, room, a, b))
+    def fault(flags, kind, a, b=None):  # flags (n,), a message per curve a[k] (and b[k])
+        faults.append(jnp.reshape(flags, -1))
+        b = np.zeros(len(a), int) if b is None else b
+        messages.extend(_refusal(kind, curves, room, int(i), int(j)) for i, j in zip(a, b))
 
     for i, curve in enumerate(curves):
         zero = _zero_length_edges(curve, jnp)
         if zero is not None:
-            fault(jnp.any(zero), "zero", i)
+            fault(jnp.any(zero), "zero", [i])
     lines = [_polyline(c, jnp) for c in curves]
-    vertices = jnp.concatenate([v for v, _ in lines])
-    size = jnp.maximum(jnp.ptp(vertices, axis=0).max(), 1e-300)
-    meets = _meetings(lines, 1e-9 * size)
-    for i in range(m):
-        fault(meets[i, i], "self", i)
-    for i in range(objects):
-        for j in range(i + 1, m):
-            fault(meets[i, j] | meets[j, i], "meet", i, j)
-    for i in range(objects):
-        first = lines[i][0][:1]
-        if room:
-            fault(~inside_polygon(first, lines[-1][0], jnp)[0], "outside", i)
-        for j in range(objects):
-            if j != i:
-                fault(inside_polygon(first, lines[j][0], jnp)[0], "nest", i, j)
-    found = jnp.stack(faults)
+    chords = _Chords.of(lines)
+    size = jnp.maximum(jnp.ptp(chords.starts, axis=0).max(), 1e-300)
+    meets = _meetings(chords, m, 1e-9 * size)
+    fault(jnp.diagonal(meets), "self", range(m))
+    a, b = _pairs(itertools.combinations(range(m), 2))
+    a, b = a[a < objects], b[a < objects]
+    fault((meets | meets.T)[a, b], "meet", a, b)
+    inside = _insides(jnp.stack([v[0] for v, _ in lines[:objects]]), chords, m)
+    if room:
+        fault(~inside[:, -1], "outside", range(objects))
+    a, b = _pairs(itertools.permutations(range(objects), 2))
+    fault(inside[a, b], "nest", a, b)
+    found = jnp.concatenate(faults)
     leaves, treedef = jax.tree.flatten(curves)
     leaves[0] = eqx.branched_error_if(leaves[0], jnp.any(found), jnp.argmax(found), messages)
     return jax.tree.unflatten(treedef, leaves)
