@@ -142,10 +142,11 @@ INVALID = {
     "zero-length edge": (
         lambda v: ocp.Scene([_POLYGON(v)]),
         [[[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]],
-        # (built from concrete arrays the polygon itself refuses it)
-        "not regular|curve 0 has an edge of zero length",
+        "not regular",  # (the polygon itself refuses it, before the scene)
     ),
 }
+# Where the words under jit differ: a polygon checks its own arrays only when concrete.
+INVALID_UNDER_JIT = {"zero-length edge": "curve 0 has an edge of zero length"}
 
 
 @pytest.mark.parametrize("name", INVALID)
@@ -158,7 +159,7 @@ def test_invalid_geometry_is_refused(name):
 @pytest.mark.parametrize("name", INVALID)
 def test_invalid_geometry_built_under_jit_is_refused(name):
     build, arrays, message = INVALID[name]
-    with pytest.raises(Exception, match=message):
+    with pytest.raises(Exception, match=INVALID_UNDER_JIT.get(name, message)):
         jax.block_until_ready(jax.jit(build)(*map(jnp.asarray, arrays)))
 
 

@@ -43,7 +43,7 @@ def _polyline(curve, xp=np):
         vertices = points[:, 0] if xp is jnp else np.asarray(points[:, 0], float)
         return vertices, xp.zeros(len(vertices), vertices.dtype)
     n = _REFINE * curve.grid_cells()
-    t = (jnp.arange(2 * n) / (2 * n)).astype(curve.dtype)
+    t = jnp.asarray(np.arange(2 * n) / (2 * n), curve.dtype)
     if xp is jnp:
         x = curve(t)
     else:
