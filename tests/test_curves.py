@@ -286,6 +286,34 @@ def test_scene_evaluates_every_curve():
         assert np.all(row[own.size :] == 1.0)
 
 
+def _de_casteljau(points, s):
+    """Points (d + 1, 2) of one Bezier segment at s, by repeated interpolation."""
+    while len(points) > 1:
+        points = (1.0 - s) * points[:-1] + s * points[1:]
+    return points[0]
+
+
+@pytest.mark.parametrize("name", sorted(CURVES) + ["rounded_rectangle"])
+def test_bezier_pieces_trace_the_curve(name):
+    """`bezier_pieces` (how a scene evaluates polygons and Bezier curves) is the same
+    curve with the same parameter: de Casteljau on segment floor(n t) at n t - floor(n t)
+    against the NumPy reference; conics and B-splines have none."""
+    if name == "rounded_rectangle":
+        curve = ocp.PiecewiseCurve.rounded_rectangle(jnp.array([0.5, -1.0]), 3.0, 2.0, 0.4)
+    else:
+        curve = CURVES[name]()
+    pieces = curve.bezier_pieces()
+    if isinstance(curve, (ocp.AbstractConic, ocp.BSplineCurve)):
+        assert pieces is None
+        return
+    pieces = np.asarray(pieces)
+    n = pieces.shape[0]
+    segment = np.minimum(np.floor(n * T_ALL), n - 1).astype(int)
+    x = np.stack([_de_casteljau(pieces[j], n * t - j) for j, t in zip(segment, T_ALL)])
+    want = eval_curve(spec(curve), T_ALL)[0]
+    np.testing.assert_allclose(x, want, rtol=0, atol=1e-13 * np.abs(want).max())
+
+
 # ---------------------------------------------------------------------------
 # invalid input: ValueError naming the problem
 # ---------------------------------------------------------------------------

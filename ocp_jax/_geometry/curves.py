@@ -146,6 +146,15 @@ class AbstractCurve(eqx.Module):
         """Static parameters where x' may jump (corners): none for a smooth curve."""
         return np.zeros(0)
 
+    def bezier_pieces(self) -> Float[Array, "n d1 2"] | None:
+        """The curve as n Bezier segments of one degree d, segment j traced for t in
+        [j/n, (j+1)/n) as in `PiecewiseCurve` (the same curve, the same parameter), as
+        their full control points (n, d + 1, 2), or None (conics, and B-splines, whose
+        blending formula is better conditioned for their derivatives than differences of
+        their Bezier points). The scene evaluates the curves that have them as one table
+        per degree (`Scene`)."""
+        return None
+
     def derivatives(
         self, t: Real[ArrayLike, "*shape"]
     ) -> tuple[Float[Array, "*shape 2"], Float[Array, "*shape 2"], Float[Array, "*shape 2"]]:
@@ -340,6 +349,9 @@ class BezierCurve(AbstractCurve):
             _bernstein_combination(tp, sp, n - 1, d1),
             _bernstein_combination(tp, sp, n - 2, d2),
         )
+
+    def bezier_pieces(self):
+        return self.control_points[None]
 
     def panels(self):
         return max(4, self.degree)
@@ -731,30 +743,14 @@ class PiecewiseCurve(AbstractCurve):
         return self._segment_components(t, left=True)
 
     def _segment_components(self, t, left: bool):
-        n, d = self.segments, self.degree
-        u = t * n
-        # A joint is where u is an integer up to rounding (t = j/n need not be exact).
-        joint = jnp.round(u)
-        at_joint = jnp.abs(u - joint) <= 8 * n * jnp.finfo(u.dtype).eps
-        if left:
-            segment = jnp.where(at_joint, joint - 1.0, jnp.ceil(u) - 1.0)
-        else:
-            segment = jnp.where(at_joint, joint, jnp.floor(u))
-        segment = jnp.clip(segment, 0, n - 1)
-        s = u - segment
-        p = self.control_points[segment.astype(jnp.int32)]  # t.shape + (d + 1, 2)
-        d1 = (n * d) * (p[..., 1:, :] - p[..., :-1, :])
-        sp, tp = _powers(1.0 - s, d), _powers(s, d)
-        x = _bernstein_combination(tp, sp, d, p)
-        dx = _bernstein_combination(tp, sp, d - 1, d1)
-        if d == 1:
-            zero = jnp.zeros_like(t)
-            return x, dx, Vec(zero, zero)
-        d2 = (n * (d - 1)) * (d1[..., 1:, :] - d1[..., :-1, :])
-        return x, dx, _bernstein_combination(tp, sp, d - 2, d2)
+        points = self.control_points
+        return segment_components(lambda j: points[j], self.segments, self.degree, t, left)
 
     def corners(self):
         return np.arange(self.segments) / self.segments
+
+    def bezier_pieces(self):
+        return self.control_points
 
     def panels(self):
         # The foreshortened q on a line at distance a from the camera is the Lorentzian
@@ -764,6 +760,34 @@ class PiecewiseCurve(AbstractCurve):
 
     def grid_cells(self):
         return self.segments * (1 if self.degree == 1 else 4 * self.degree)
+
+
+def segment_components(points_of, n, degree: int, t, left: bool) -> tuple[Vec, Vec, Vec]:
+    """x, x', x'' (or their left limits) of a closed path of n Bezier segments of one
+    `degree`, segment j traced for t in [j/n, (j+1)/n) (`PiecewiseCurve`); `points_of(j)`
+    gives the full control points of the segments j (an integer array), shape
+    j.shape + (degree + 1, 2), and n may be traced."""
+    d = degree
+    u = t * n
+    # A joint is where u is an integer up to rounding (t = j/n need not be exact).
+    joint = jnp.round(u)
+    at_joint = jnp.abs(u - joint) <= 8 * n * jnp.finfo(u.dtype).eps
+    if left:
+        segment = jnp.where(at_joint, joint - 1.0, jnp.ceil(u) - 1.0)
+    else:
+        segment = jnp.where(at_joint, joint, jnp.floor(u))
+    segment = jnp.clip(segment, 0, n - 1)
+    s = u - segment
+    p = points_of(segment.astype(jnp.int32))  # t.shape + (d + 1, 2)
+    d1 = (n * d) * (p[..., 1:, :] - p[..., :-1, :])
+    sp, tp = _powers(1.0 - s, d), _powers(s, d)
+    x = _bernstein_combination(tp, sp, d, p)
+    dx = _bernstein_combination(tp, sp, d - 1, d1)
+    if d == 1:
+        zero = jnp.zeros_like(t)
+        return x, dx, Vec(zero, zero)
+    d2 = (n * (d - 1)) * (d1[..., 1:, :] - d1[..., :-1, :])
+    return x, dx, _bernstein_combination(tp, sp, d - 2, d2)
 
 
 def _elevate(points: Array, degree: int) -> Array:

@@ -2,7 +2,7 @@
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax
@@ -10,7 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .curves import AbstractConic, AbstractCurve, PiecewiseCurve, UnitFrame, is_concrete
+from .curves import (
+    AbstractConic,
+    AbstractCurve,
+    PiecewiseCurve,
+    UnitFrame,
+    is_concrete,
+    segment_components,
+)
 from .validity import check_scene, checked_under_trace
 from .vec import Vec
 
@@ -22,12 +29,57 @@ def _structure(curve: AbstractCurve):
     return treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves)
 
 
+class _PieceTable(AbstractCurve):
+    """Row `row` of a table of closed paths of Bezier segments of one degree d
+    (`AbstractCurve.bezier_pieces`), each padded to the table's S segments: how the
+    scene evaluates its polygons and Bezier curves, so that curves of one degree compile
+    to one evaluation, however many they are and whatever their numbers of segments.
+
+    **Arguments:**
+
+    - `table`: (m, S, d + 1, 2), path i's segments, the last repeated past its own.
+    - `counts`: (m,), each path's number of segments n_i (segment j is traced for t in
+      [j/n_i, (j+1)/n_i)).
+    - `row`: which path this is.
+    """
+
+    table: Float[Array, "m s d1 2"]
+    counts: Float[Array, " m"]
+    row: Int[Array, ""]
+
+    def _components(self, t, left: bool):
+        degree = self.table.shape[-2] - 1
+        n = self.counts[self.row]
+        return segment_components(lambda j: self.table[self.row, j], n, degree, t, left)
+
+    def components(self, t):
+        return self._components(t, left=False)
+
+    def components_left(self, t):
+        return self._components(t, left=True)
+
+    def bounds(self):
+        points = self.table[self.row].reshape(-1, 2)
+        return jnp.min(points, 0), jnp.max(points, 0)
+
+
+def _piece_table(pieces: list[Array], dtype) -> tuple[Array, Array]:
+    """The `_PieceTable` arrays of paths of one degree (their `bezier_pieces`)."""
+    width = max(p.shape[0] for p in pieces)
+    table = jnp.stack(
+        [jnp.pad(p, ((0, width - p.shape[0]), (0, 0), (0, 0)), "edge") for p in pieces]
+    )
+    return table.astype(dtype), jnp.asarray([p.shape[0] for p in pieces], dtype)
+
+
 class Scene(eqx.Module):
     """The objects x_1..x_m of a scene (Sec. 2.1), as a pytree of curves, optionally
     inside a room.
 
-    Curves of the same type and shape are evaluated together (stacked and vmapped), so
-    a scene of many similar objects compiles to one evaluation, not one per object.
+    Curves are evaluated in groups, so that a scene of many objects compiles to a few
+    evaluations, not one per object: polygons, rounded rectangles and Bezier curves as
+    Bezier segments (`AbstractCurve.bezier_pieces`), one table per degree whatever their
+    number of segments, and other curves (B-splines, conics) stacked by type and shape.
 
     The curves must form a valid scene: each simple, no two crossing, touching or
     nested, all inside the room. Built from concrete arrays, an invalid scene raises a
@@ -87,30 +139,44 @@ class Scene(eqx.Module):
     def dtype(self):
         return jnp.result_type(*jax.tree.leaves(self.curves))
 
-    def _groups(self) -> list[list[int]]:
+    def _groups(self) -> list[tuple[list[int], Callable]]:
+        """The curves evaluated together: every group's curve indices, and `curve_of`, which
+        gives group member `local` (an integer array) as a curve to evaluate. Curves made
+        of Bezier segments (`AbstractCurve.bezier_pieces`) are one group per degree,
+        evaluated from one table (`_PieceTable`); other curves are grouped by type and
+        shape and stacked."""
+        pieces = [c.bezier_pieces() for c in self.curves]
         groups: dict = {}
-        for i, c in enumerate(self.curves):
-            groups.setdefault(_structure(c), []).append(i)
-        return list(groups.values())
-
-    def _stacked(self, group: list[int]) -> AbstractCurve:
-        """The curves of one group (`_groups`), stacked along a leading axis."""
-        return jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+        for i, (c, p) in enumerate(zip(self.curves, pieces)):
+            key = ("pieces", p.shape[1]) if p is not None else _structure(c)
+            groups.setdefault(key, []).append(i)
+        out = []
+        for key, group in groups.items():
+            if key[0] == "pieces":
+                table, counts = _piece_table([pieces[i] for i in group], self.dtype)
+                curve_of = functools.partial(_PieceTable, table, counts)
+            elif len(group) == 1:
+                curve_of = functools.partial(lambda curve, _: curve, self.curves[group[0]])
+            else:
+                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+                curve_of = functools.partial(_stacked_row, stacked)
+            out.append((group, curve_of))
+        return out
 
     def _map(self, fn, *args):
         """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
         results are stacked along a leading curve axis. A curve alone in its group is
         not vmapped (a batch of one only makes the program longer to trace)."""
         outputs, order = [], []
-        for group in self._groups():
+        for group, curve_of in self._groups():
             if len(group) == 1:
                 (i,) = group
-                out = fn(self.curves[i], *(a[i] for a in args))
+                out = fn(curve_of(jnp.asarray(0)), *(a[i] for a in args))
                 outputs.append(jax.tree.map(lambda a: a[None], out))
             else:
-                stacked = self._stacked(group)
                 rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
-                outputs.append(jax.vmap(fn)(stacked, *rows))
+                local = jnp.arange(len(group))
+                outputs.append(jax.vmap(lambda j, *r: fn(curve_of(j), *r))(local, *rows))
             order.extend(group)
         if len(outputs) == 1:
             return outputs[0]
@@ -126,16 +192,15 @@ class Scene(eqx.Module):
         that of the elements times the number of groups, not of the curves."""
         groups = self._groups()
         group_of, local = np.zeros(len(self.curves), int), np.zeros(len(self.curves), int)
-        for g, group in enumerate(groups):
+        for g, (group, _) in enumerate(groups):
             group_of[group], local[group] = g, np.arange(len(group))
         outputs = []
-        for group in groups:
+        for group, curve_of in groups:
             if len(group) == 1:  # (all of t at once)
-                outputs.append(fn(self.curves[group[0]], t))
+                outputs.append(fn(curve_of(jnp.asarray(0)), t))
             else:
-                stacked = self._stacked(group)
-                own = jax.tree.map(lambda a: a[jnp.asarray(local)[curve]], stacked)
-                outputs.append(jax.vmap(fn, out_axes=axis)(own, t))
+                own = jnp.asarray(local)[curve]
+                outputs.append(jax.vmap(lambda j, t: fn(curve_of(j), t), out_axes=axis)(own, t))
         if len(outputs) == 1:
             return outputs[0]
         group = jnp.asarray(group_of)[curve]
@@ -274,6 +339,11 @@ class Scene(eqx.Module):
         points = [c.breakpoints() for c in self.curves]
         width = max(p.shape[0] for p in points)
         return jnp.stack([jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points])
+
+
+def _stacked_row(stacked: AbstractCurve, row: Int[Array, ""]) -> AbstractCurve:
+    """Curve `row` of curves stacked along a leading axis."""
+    return jax.tree.map(lambda a: a[row], stacked)
 
 
 # A curve evaluation is hundreds of operations (a degree-18 Bezier) and Q evaluates the
