@@ -2,8 +2,10 @@
 VisiLibity1's visibility polygons for the same cameras, as the floor and the number of
 cameras grow.
 
-Floors come from `ocp.scenes.floor(seed, cells, objects)` (a random union of grid cells
-with furniture of every curve type) and cameras from `ocp.scenes.free_points`. Each row
+Floors come from `ocp.scenes.floor(seed, cells, cells // 2, jagged=...)` (a random union
+of grid cells with furniture of every curve type; `--jagged 1`, the default, grows spurs,
+about 1.4 walls per cell, so that the default cells give about 16 to 256 walls) and
+cameras from `ocp.scenes.free_points`. Each row
 sizes the event budgets with `ocp.fit_options` (headroom 1), compiles value and gradient
 under one jit (the compile column), and times the compiled call (median of `--repeat`).
 VisiLibity1 computes the k visibility polygons of the same cameras (its environment,
@@ -12,7 +14,7 @@ is ocp_jax / VisiLibity; `growth` is the value+grad time over that of the same k
 previous floor (the floors double). Float64 throughout.
 
     python benchmarks/floors.py                      # every size: long on 2 cores
-    python benchmarks/floors.py --cells 16 32 --cameras 1 4
+    python benchmarks/floors.py --cells 12 24 --cameras 1 4
 """
 
 import argparse
@@ -46,8 +48,8 @@ def median_time(fn, repeat: int) -> float:
     return float(np.median(times))
 
 
-def row(cells: int, k: int, seed: int, repeat: int) -> dict:
-    scene = ocp.scenes.floor(seed, cells, max(1, cells // 2))
+def row(cells: int, k: int, seed: int, repeat: int, jagged: float) -> dict:
+    scene = ocp.scenes.floor(seed, cells, max(1, cells // 2), jagged=jagged)
     cameras = ocp.scenes.free_points(scene, k, seed)
     objective = ocp.Foreshortened()
     options = ocp.fit_options(scene, cameras, objective)
@@ -72,7 +74,8 @@ def row(cells: int, k: int, seed: int, repeat: int) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cells", type=int, nargs="+", default=[16, 32, 64, 128, 256])
+    parser.add_argument("--cells", type=int, nargs="+", default=[12, 24, 48, 96, 192])
+    parser.add_argument("--jagged", type=float, default=1.0)
     parser.add_argument("--cameras", type=int, nargs="+", default=[1, 4, 16, 64])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeat", type=int, default=5)
@@ -84,7 +87,7 @@ def main():
     previous = {}
     for cells in args.cells:
         for k in args.cameras:
-            r = row(cells, k, args.seed, args.repeat)
+            r = row(cells, k, args.seed, args.repeat, args.jagged)
             before = previous.get(k)
             growth = f"{r['engine'] / before:.2f}x" if before else ""
             previous[k] = r["engine"]

@@ -154,17 +154,22 @@ def room_cameras() -> Camera:
     )
 
 
-def _grid_room(rng: np.random.Generator, cells: int) -> np.ndarray:
+def _grid_room(rng: np.random.Generator, cells: int, jagged: float) -> np.ndarray:
     """A random simply connected union of `cells` unit grid cells whose boundary is one
     simple orthogonal polygon (no holes, no cells touching at a corner only), grown
-    cell by cell from one. Returns the boundary's vertices, counter-clockwise, with the
-    collinear ones dropped."""
+    cell by cell from one; with probability `jagged` a step only takes a cell beside
+    a single taken one (a new spur). Returns the boundary's vertices, counter-clockwise,
+    with the collinear ones dropped."""
     taken = {(0, 0)}
+    steps = ((1, 0), (-1, 0), (0, 1), (0, -1))
     while len(taken) < cells:
         x, y = list(taken)[rng.integers(len(taken))]
-        dx, dy = ((1, 0), (-1, 0), (0, 1), (0, -1))[rng.integers(4)]
+        dx, dy = steps[rng.integers(4)]
         cell = (x + dx, y + dy)
         if cell in taken:
+            continue
+        spur = jagged > 0 and rng.uniform() < jagged  # (no extra draw at 0)
+        if spur and sum((cell[0] + a, cell[1] + b) in taken for a, b in steps) > 1:
             continue
         grown = taken | {cell}
         if _simple_boundary(grown):
@@ -257,9 +262,11 @@ def floor(
     objects: int = 8,
     cell_size: float = 2.0,
     kinds: tuple[str, ...] = FURNITURE,
+    jagged: float = 0.0,
 ) -> Scene:
     """A random floor plan: a room of `cells` grid cells of side `cell_size` (a random,
-    simply connected union; orthogonal walls, about as many as cells) holding `objects`
+    simply connected union; orthogonal walls, about as many as cells, up to about twice
+    as many with `jagged`) holding `objects`
     pieces of furniture (at most one per cell, in the middle of its cell, so that none
     touches another or a wall) of the `kinds` in turn (`FURNITURE`: rectangles,
     L-shapes, triangles, circles, ellipses, rounded rectangles and B-spline blobs).
@@ -271,13 +278,18 @@ def floor(
       (`objects <= cells`) and the side of a grid cell.
     - `kinds`: the kinds of furniture, from `FURNITURE` (polygons only: the first
       three).
+    - `jagged`: in [0, 1], the share of growth steps that may only add a cell beside a
+      single cell of the room, starting a spur one cell wide: 0 gives compact rooms,
+      1 branching corridors with about two walls per cell.
 
     **Returns:** a `Scene` with a room.
     """
     if not 1 <= objects <= cells:
         raise ValueError(f"floor needs 1 <= objects <= cells, got {objects} and {cells}.")
+    if not 0.0 <= jagged <= 1.0:
+        raise ValueError(f"floor needs 0 <= jagged <= 1, got {jagged}.")
     rng = np.random.default_rng(seed)
-    walls = _grid_room(rng, cells)
+    walls = _grid_room(rng, cells, jagged)
     taken = _cells_inside(walls)
     chosen = rng.choice(len(taken), objects, replace=False)
     furniture = [

@@ -105,6 +105,41 @@ def test_random_floors_are_valid_scenes(seed):
     assert np.all(np.asarray(signed_distances(scene, positions)) > 0.1)
 
 
+def test_jagged_floors_have_more_walls_and_are_valid():
+    """`jagged` grows spurs: more walls from the same cells, still a valid scene."""
+    compact = ocp.scenes.floor(seed=4, cells=48, objects=8)
+    jagged = ocp.scenes.floor(seed=4, cells=48, objects=8, jagged=1.0)
+    walls = [len(outline(s.curves[-1])) for s in (compact, jagged)]
+    assert walls[1] > 1.3 * walls[0]
+    positions = ocp.scenes.free_points(jagged, 4, seed=4)
+    assert np.all(np.asarray(signed_distances(jagged, positions)) > 0.1)
+    with pytest.raises(ValueError, match="0 <= jagged <= 1"):
+        ocp.scenes.floor(seed=4, cells=8, jagged=1.5)
+
+
+def _equations(scene: ocp.Scene) -> int:
+    t = jnp.full((len(scene), 8), 0.3)
+    return len(jax.make_jaxpr(lambda s: s.components(t))(scene).jaxpr.eqns)
+
+
+def test_polygons_of_any_corner_count_share_one_evaluation():
+    """Curves made of Bezier segments of one degree are evaluated from one table, so a
+    floor of squares, triangles and L-shapes in an L-shaped room traces the same
+    program as one of squares in a square room."""
+    square = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    ell = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.0], [0.0, 0.0], [0.0, 0.5], [-0.5, 0.5]])
+    triangle = np.array([[-0.5, -0.5], [0.5, -0.5], [0.0, 0.5]])
+    room_ell = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 4.0], [4.0, 4.0], [4.0, 8.0], [0.0, 8.0]])
+    room_square = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 8.0], [0.0, 8.0]])
+    centres = np.array([[2.0, 2.0], [6.0, 2.0], [2.0, 6.0]])
+    squares = ocp.Scene([_POLYGON(square + c) for c in centres], room=_POLYGON(room_square))
+    mixed = ocp.Scene(
+        [_POLYGON(shape + c) for shape, c in zip((square, ell, triangle), centres)],
+        room=_POLYGON(room_ell),
+    )
+    assert _equations(mixed) == _equations(squares)
+
+
 _POLYGON = ocp.PiecewiseCurve.polygon
 _SQUARE_ROOM = jnp.array([[-5.0, -5.0], [5.0, -5.0], [5.0, 5.0], [-5.0, 5.0]])
 
