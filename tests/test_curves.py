@@ -293,17 +293,24 @@ def _de_casteljau(points, s):
     return points[0]
 
 
-@pytest.mark.parametrize("name", sorted(CURVES) + ["rounded_rectangle"])
+PIECEWISE = {
+    "rounded_rectangle": lambda: ocp.PiecewiseCurve.rounded_rectangle(
+        jnp.array([0.5, -1.0]), 3.0, 2.0, 0.4
+    ),
+    "l_shaped_polygon": lambda: ocp.PiecewiseCurve.polygon(
+        jnp.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [1.0, 1.0], [1.0, 2.0], [0.0, 2.0]])
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CURVES) + sorted(PIECEWISE))
 def test_bezier_pieces_trace_the_curve(name):
-    """`bezier_pieces` (how a scene evaluates polygons and Bezier curves) is the same
-    curve with the same parameter: de Casteljau on segment floor(n t) at n t - floor(n t)
-    against the NumPy reference; conics and B-splines have none."""
-    if name == "rounded_rectangle":
-        curve = ocp.PiecewiseCurve.rounded_rectangle(jnp.array([0.5, -1.0]), 3.0, 2.0, 0.4)
-    else:
-        curve = CURVES[name]()
+    """`bezier_pieces` (how a scene evaluates a `PiecewiseCurve`) is the same curve
+    with the same parameter: de Casteljau on segment floor(n t) at n t - floor(n t)
+    against the NumPy reference; the curves with a formula of their own have none."""
+    curve = {**CURVES, **PIECEWISE}[name]()
     pieces = curve.bezier_pieces()
-    if isinstance(curve, (ocp.AbstractConic, ocp.BSplineCurve)):
+    if not isinstance(curve, ocp.PiecewiseCurve):
         assert pieces is None
         return
     pieces = np.asarray(pieces)

@@ -149,10 +149,12 @@ class AbstractCurve(eqx.Module):
     def bezier_pieces(self) -> Float[Array, "n d1 2"] | None:
         """The curve as n Bezier segments of one degree d, segment j traced for t in
         [j/n, (j+1)/n) as in `PiecewiseCurve` (the same curve, the same parameter), as
-        their full control points (n, d + 1, 2), or None (conics, and B-splines, whose
-        blending formula is better conditioned for their derivatives than differences of
-        their Bezier points). The scene evaluates the curves that have them as one table
-        per degree (`Scene`)."""
+        their full control points (n, d + 1, 2), or None for a curve evaluated by its own
+        formula: conics; B-splines, whose blending formula is better conditioned for
+        their derivatives than differences of their Bezier points; and Bezier curves,
+        whose derivatives' control points are formed once per call, not at every point.
+        The scene evaluates the curves that have them as one table per degree
+        (`Scene`)."""
         return None
 
     def derivatives(
@@ -349,9 +351,6 @@ class BezierCurve(AbstractCurve):
             _bernstein_combination(tp, sp, n - 1, d1),
             _bernstein_combination(tp, sp, n - 2, d2),
         )
-
-    def bezier_pieces(self):
-        return self.control_points[None]
 
     def panels(self):
         return max(4, self.degree)

@@ -2,7 +2,7 @@
 
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -32,8 +32,9 @@ def _structure(curve: AbstractCurve):
 class _PieceTable(AbstractCurve):
     """Row `row` of a table of closed paths of Bezier segments of one degree d
     (`AbstractCurve.bezier_pieces`), each padded to the table's S segments: how the
-    scene evaluates its polygons and Bezier curves, so that curves of one degree compile
-    to one evaluation, however many they are and whatever their numbers of segments.
+    scene evaluates its polygons and other `PiecewiseCurve`s, so that curves of one degree
+    compile to one evaluation, however many they are and whatever their numbers of
+    segments.
 
     **Arguments:**
 
@@ -77,9 +78,10 @@ class Scene(eqx.Module):
     inside a room.
 
     Curves are evaluated in groups, so that a scene of many objects compiles to a few
-    evaluations, not one per object: polygons, rounded rectangles and Bezier curves as
-    Bezier segments (`AbstractCurve.bezier_pieces`), one table per degree whatever their
-    number of segments, and other curves (B-splines, conics) stacked by type and shape.
+    evaluations, not one per object: polygons and other `PiecewiseCurve`s as Bezier
+    segments (`AbstractCurve.bezier_pieces`), one table per degree whatever their number
+    of segments, and other curves (B-splines, Bezier curves, conics) stacked by type and
+    shape.
 
     The curves must form a valid scene: each simple, no two crossing, touching or
     nested, all inside the room. Built from concrete arrays, an invalid scene raises a
@@ -139,12 +141,12 @@ class Scene(eqx.Module):
     def dtype(self):
         return jnp.result_type(*jax.tree.leaves(self.curves))
 
-    def _groups(self) -> list[tuple[list[int], Callable]]:
-        """The curves evaluated together: every group's curve indices, and `curve_of`, which
-        gives group member `local` (an integer array) as a curve to evaluate. Curves made
-        of Bezier segments (`AbstractCurve.bezier_pieces`) are one group per degree,
-        evaluated from one table (`_PieceTable`); other curves are grouped by type and
-        shape and stacked."""
+    def _groups(self) -> list[tuple[list[int], AbstractCurve]]:
+        """The curves evaluated together: every group's curve indices, and its curves
+        as one pytree. Curves made of Bezier segments (`AbstractCurve.bezier_pieces`) are
+        one group per degree, evaluated from one table (`_PieceTable`, at row 0); other
+        curves are grouped by type and shape and stacked along a leading axis (a curve
+        alone in its group: itself)."""
         pieces = [c.bezier_pieces() for c in self.curves]
         groups: dict = {}
         for i, (c, p) in enumerate(zip(self.curves, pieces)):
@@ -154,13 +156,12 @@ class Scene(eqx.Module):
         for key, group in groups.items():
             if key[0] == "pieces":
                 table, counts = _piece_table([pieces[i] for i in group], self.dtype)
-                curve_of = functools.partial(_PieceTable, table, counts)
+                form = _PieceTable(table, counts, jnp.asarray(0))
             elif len(group) == 1:
-                curve_of = functools.partial(lambda curve, _: curve, self.curves[group[0]])
+                form = self.curves[group[0]]
             else:
-                stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
-                curve_of = functools.partial(_stacked_row, stacked)
-            out.append((group, curve_of))
+                form = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
+            out.append((group, form))
         return out
 
     def _map(self, fn, *args):
@@ -168,15 +169,14 @@ class Scene(eqx.Module):
         results are stacked along a leading curve axis. A curve alone in its group is
         not vmapped (a batch of one only makes the program longer to trace)."""
         outputs, order = [], []
-        for group, curve_of in self._groups():
+        for group, form in self._groups():
             if len(group) == 1:
                 (i,) = group
-                out = fn(curve_of(jnp.asarray(0)), *(a[i] for a in args))
+                out = fn(form, *(a[i] for a in args))
                 outputs.append(jax.tree.map(lambda a: a[None], out))
             else:
                 rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
-                local = jnp.arange(len(group))
-                outputs.append(jax.vmap(lambda j, *r: fn(curve_of(j), *r))(local, *rows))
+                outputs.append(_rows_vmapped(fn, form, None, rows))
             order.extend(group)
         if len(outputs) == 1:
             return outputs[0]
@@ -195,12 +195,12 @@ class Scene(eqx.Module):
         for g, (group, _) in enumerate(groups):
             group_of[group], local[group] = g, np.arange(len(group))
         outputs = []
-        for group, curve_of in groups:
+        for group, form in groups:
             if len(group) == 1:  # (all of t at once)
-                outputs.append(fn(curve_of(jnp.asarray(0)), t))
+                outputs.append(fn(form, t))
             else:
                 own = jnp.asarray(local)[curve]
-                outputs.append(jax.vmap(lambda j, t: fn(curve_of(j), t), out_axes=axis)(own, t))
+                outputs.append(_rows_vmapped(fn, form, own, [t], out_axes=axis))
         if len(outputs) == 1:
             return outputs[0]
         group = jnp.asarray(group_of)[curve]
@@ -341,9 +341,19 @@ class Scene(eqx.Module):
         return jnp.stack([jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points])
 
 
-def _stacked_row(stacked: AbstractCurve, row: Int[Array, ""]) -> AbstractCurve:
-    """Curve `row` of curves stacked along a leading axis."""
-    return jax.tree.map(lambda a: a[row], stacked)
+def _rows_vmapped(fn, form: AbstractCurve, index, args: list, out_axes: int = 0):
+    """`fn(curve, *args_j)` vmapped over j on the curves of a group (`Scene._groups`):
+    the curve `index[j]` (all in turn where None) and the j-th rows of `args`. A table's
+    rows are picked by their index; stacked curves are gathered where `index` is given."""
+    if isinstance(form, _PieceTable):
+        if index is None:
+            index = jnp.arange(form.counts.shape[0])
+        table, counts = form.table, form.counts
+        return jax.vmap(lambda j, *a: fn(_PieceTable(table, counts, j), *a), out_axes=out_axes)(
+            index, *args
+        )
+    own = form if index is None else jax.tree.map(lambda a: a[index], form)
+    return jax.vmap(fn, out_axes=out_axes)(own, *args)
 
 
 # A curve evaluation is hundreds of operations (a degree-18 Bezier) and Q evaluates the
