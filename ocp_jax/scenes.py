@@ -265,8 +265,8 @@ def floor(
     jagged: float = 0.0,
 ) -> Scene:
     """A random floor plan: a room of `cells` grid cells of side `cell_size` (a random,
-    simply connected union; orthogonal walls, about as many as cells, up to about twice
-    as many with `jagged`) holding `objects`
+    simply connected union; orthogonal walls, about as many as cells, about 1.4 times as
+    many with `jagged=1`) holding `objects`
     pieces of furniture (at most one per cell, in the middle of its cell, so that none
     touches another or a wall) of the `kinds` in turn (`FURNITURE`: rectangles,
     L-shapes, triangles, circles, ellipses, rounded rectangles and B-spline blobs).
@@ -280,7 +280,7 @@ def floor(
       three).
     - `jagged`: in [0, 1], the share of growth steps that may only add a cell beside a
       single cell of the room, starting a spur one cell wide: 0 gives compact rooms,
-      1 branching corridors with about two walls per cell.
+      1 branching corridors with about 1.4 walls per cell.
 
     **Returns:** a `Scene` with a room.
     """

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
-from jaxtyping import Array, ArrayLike, Float, Real
+from jaxtyping import Array, ArrayLike, Float, Int, Real
 
 from .vec import Vec, add, scale
 
@@ -736,14 +736,14 @@ class PiecewiseCurve(AbstractCurve):
         return cls.from_segments([seg + [cx, cy] for seg in segments])
 
     def components(self, t):
-        return self._segment_components(t, left=False)
+        return self._components(t, left=False)
 
     def components_left(self, t):
-        return self._segment_components(t, left=True)
+        return self._components(t, left=True)
 
-    def _segment_components(self, t, left: bool):
+    def _components(self, t, left: bool):
         points = self.control_points
-        return segment_components(lambda j: points[j], self.segments, self.degree, t, left)
+        return _segment_components(lambda j: points[j], self.segments, self.degree, t, left)
 
     def corners(self):
         return np.arange(self.segments) / self.segments
@@ -761,11 +761,11 @@ class PiecewiseCurve(AbstractCurve):
         return self.segments * (1 if self.degree == 1 else 4 * self.degree)
 
 
-def segment_components(points_of, n, degree: int, t, left: bool) -> tuple[Vec, Vec, Vec]:
+def _segment_components(points_of, n, degree: int, t, left: bool) -> tuple[Vec, Vec, Vec]:
     """x, x', x'' (or their left limits) of a closed path of n Bezier segments of one
-    `degree`, segment j traced for t in [j/n, (j+1)/n) (`PiecewiseCurve`); `points_of(j)`
-    gives the full control points of the segments j (an integer array), shape
-    j.shape + (degree + 1, 2), and n may be traced."""
+    `degree`, segment j traced for t in [j/n, (j+1)/n) (`PiecewiseCurve`, `PieceTable`);
+    `points_of(j)` gives the full control points of the segments j (an integer array),
+    shape j.shape + (degree + 1, 2), and n may be traced."""
     d = degree
     u = t * n
     # A joint is where u is an integer up to rounding (t = j/n need not be exact).
@@ -787,6 +787,49 @@ def segment_components(points_of, n, degree: int, t, left: bool) -> tuple[Vec, V
         return x, dx, Vec(zero, zero)
     d2 = (n * (d - 1)) * (d1[..., 1:, :] - d1[..., :-1, :])
     return x, dx, _bernstein_combination(tp, sp, d - 2, d2)
+
+
+class PieceTable(AbstractCurve):
+    """Row `row` of a table of closed paths of Bezier segments of one degree d
+    (`AbstractCurve.bezier_pieces`), each padded to the table's S segments: how the
+    scene evaluates its polygons and other `PiecewiseCurve`s, so that curves of one degree
+    compile to one evaluation, however many they are and whatever their numbers of
+    segments.
+
+    **Arguments:**
+
+    - `table`: (m, S, d + 1, 2), path i's segments, the last repeated past its own.
+    - `counts`: (m,), each path's number of segments n_i (segment j is traced for t in
+      [j/n_i, (j+1)/n_i)).
+    - `row`: which path this is.
+    """
+
+    table: Float[Array, "m s d1 2"]
+    counts: Float[Array, " m"]
+    row: Int[Array, ""]
+
+    def _components(self, t, left: bool):
+        degree = self.table.shape[-2] - 1
+        n = self.counts[self.row]
+        return _segment_components(lambda j: self.table[self.row, j], n, degree, t, left)
+
+    def components(self, t):
+        return self._components(t, left=False)
+
+    def components_left(self, t):
+        return self._components(t, left=True)
+
+    def bounds(self):
+        return _point_bounds(self.table[self.row])
+
+
+def piece_table(pieces: list[Array], dtype) -> tuple[Array, Array]:
+    """The `PieceTable` arrays of paths of one degree (their `bezier_pieces`)."""
+    width = max(p.shape[0] for p in pieces)
+    table = jnp.stack(
+        [jnp.pad(p, ((0, width - p.shape[0]), (0, 0), (0, 0)), "edge") for p in pieces]
+    )
+    return table.astype(dtype), jnp.asarray([p.shape[0] for p in pieces], dtype)
 
 
 def _elevate(points: Array, degree: int) -> Array:

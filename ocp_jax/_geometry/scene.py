@@ -13,10 +13,11 @@ from jaxtyping import Array, Float, Int
 from .curves import (
     AbstractConic,
     AbstractCurve,
+    PieceTable,
     PiecewiseCurve,
     UnitFrame,
     is_concrete,
-    segment_components,
+    piece_table,
 )
 from .validity import check_scene, checked_under_trace
 from .vec import Vec
@@ -27,50 +28,6 @@ __all__ = ["Scene"]
 def _structure(curve: AbstractCurve):
     leaves, treedef = jax.tree.flatten(curve)
     return treedef, tuple((jnp.shape(x), jnp.result_type(x)) for x in leaves)
-
-
-class _PieceTable(AbstractCurve):
-    """Row `row` of a table of closed paths of Bezier segments of one degree d
-    (`AbstractCurve.bezier_pieces`), each padded to the table's S segments: how the
-    scene evaluates its polygons and other `PiecewiseCurve`s, so that curves of one degree
-    compile to one evaluation, however many they are and whatever their numbers of
-    segments.
-
-    **Arguments:**
-
-    - `table`: (m, S, d + 1, 2), path i's segments, the last repeated past its own.
-    - `counts`: (m,), each path's number of segments n_i (segment j is traced for t in
-      [j/n_i, (j+1)/n_i)).
-    - `row`: which path this is.
-    """
-
-    table: Float[Array, "m s d1 2"]
-    counts: Float[Array, " m"]
-    row: Int[Array, ""]
-
-    def _components(self, t, left: bool):
-        degree = self.table.shape[-2] - 1
-        n = self.counts[self.row]
-        return segment_components(lambda j: self.table[self.row, j], n, degree, t, left)
-
-    def components(self, t):
-        return self._components(t, left=False)
-
-    def components_left(self, t):
-        return self._components(t, left=True)
-
-    def bounds(self):
-        points = self.table[self.row].reshape(-1, 2)
-        return jnp.min(points, 0), jnp.max(points, 0)
-
-
-def _piece_table(pieces: list[Array], dtype) -> tuple[Array, Array]:
-    """The `_PieceTable` arrays of paths of one degree (their `bezier_pieces`)."""
-    width = max(p.shape[0] for p in pieces)
-    table = jnp.stack(
-        [jnp.pad(p, ((0, width - p.shape[0]), (0, 0), (0, 0)), "edge") for p in pieces]
-    )
-    return table.astype(dtype), jnp.asarray([p.shape[0] for p in pieces], dtype)
 
 
 class Scene(eqx.Module):
@@ -144,7 +101,7 @@ class Scene(eqx.Module):
     def _groups(self) -> list[tuple[list[int], AbstractCurve]]:
         """The curves evaluated together: every group's curve indices, and its curves
         as one pytree. Curves made of Bezier segments (`AbstractCurve.bezier_pieces`) are
-        one group per degree, evaluated from one table (`_PieceTable`, at row 0); other
+        one group per degree, evaluated from one table (`PieceTable`, at row 0); other
         curves are grouped by type and shape and stacked along a leading axis (a curve
         alone in its group: itself)."""
         pieces = [c.bezier_pieces() for c in self.curves]
@@ -155,8 +112,8 @@ class Scene(eqx.Module):
         out = []
         for key, group in groups.items():
             if key[0] == "pieces":
-                table, counts = _piece_table([pieces[i] for i in group], self.dtype)
-                form = _PieceTable(table, counts, jnp.asarray(0))
+                table, counts = piece_table([pieces[i] for i in group], self.dtype)
+                form = PieceTable(table, counts, jnp.asarray(0))
             elif len(group) == 1:
                 form = self.curves[group[0]]
             else:
@@ -345,11 +302,11 @@ def _rows_vmapped(fn, form: AbstractCurve, index, args: list, out_axes: int = 0)
     """`fn(curve, *args_j)` vmapped over j on the curves of a group (`Scene._groups`):
     the curve `index[j]` (all in turn where None) and the j-th rows of `args`. A table's
     rows are picked by their index; stacked curves are gathered where `index` is given."""
-    if isinstance(form, _PieceTable):
+    if isinstance(form, PieceTable):
         if index is None:
             index = jnp.arange(form.counts.shape[0])
         table, counts = form.table, form.counts
-        return jax.vmap(lambda j, *a: fn(_PieceTable(table, counts, j), *a), out_axes=out_axes)(
+        return jax.vmap(lambda j, *a: fn(PieceTable(table, counts, j), *a), out_axes=out_axes)(
             index, *args
         )
     own = form if index is None else jax.tree.map(lambda a: a[index], form)
