@@ -279,10 +279,10 @@ def test_edges_cross_lines_of_sight_as_segments_do():
     want = (side(c, m, a) != side(c, m, b)) & (side(a, b, c) != side(a, b, m))
     d = query - camera
     got = _occlusion._crosses_edges(
-        Vec(*jnp.asarray(d).T),
-        jnp.asarray(np.sum(d * d, -1)),
-        Vec(*jnp.asarray(start - camera).T),
-        Vec(*jnp.asarray(end - camera).T),
+        Vec(*jnp.moveaxis(jnp.asarray(d[:, None]), -1, 0)),
+        jnp.asarray(np.sum(d * d, -1))[:, None],
+        Vec(*jnp.moveaxis(jnp.asarray(start[None] - camera), -1, 0)),
+        Vec(*jnp.moveaxis(jnp.asarray(end[None] - camera), -1, 0)),
     )
     assert 0.05 < want.mean() < 0.95
     np.testing.assert_array_equal(np.asarray(got), want)

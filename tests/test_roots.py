@@ -204,6 +204,21 @@ def test_first_true_equals_numpy_nonzero(size):
         np.testing.assert_array_equal(got_filled, np.arange(size) < want.size)
 
 
+@pytest.mark.parametrize("density", [0.0, 0.05, 0.5, 1.0])
+@pytest.mark.parametrize("size", [7, 64, 1000])
+def test_over_chunks_visits_every_true_entry_once(density, size):
+    """`over_chunks` folds its step over exactly the True entries of the mask, each once,
+    whether they fill several chunks, one, or none (a mask shorter than a chunk is one
+    unpacked chunk, its False entries not live)."""
+    mask = np.random.default_rng(size).random(300) < density
+
+    def step(carry, index, live):
+        return carry.at[jnp.where(live, index, 300)].add(1, mode="drop")
+
+    visits = jax.jit(lambda m: _roots.over_chunks(m, size, step, jnp.zeros(300, int)))(mask)
+    np.testing.assert_array_equal(np.asarray(visits), mask.astype(int))
+
+
 def test_newton_in_brackets_takes_no_step_without_candidates():
     """F(t) = t - 0.3: one Newton step from any guess lands on the root. Slots move only
     where some slot of the batch element holds a candidate."""

@@ -27,7 +27,15 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._geometry.vec import Vec, add, cross, dot, norm, sub
 from .jvp import is_zero, perturbed_jvp
-from .roots import cell_ends, dip_probes, first_true, grid_brackets, solve_roots
+from .roots import (
+    CHUNK_ELEMENTS,
+    cell_ends,
+    dip_probes,
+    first_true,
+    grid_brackets,
+    over_chunks,
+    solve_roots,
+)
 from .xla_cpu import fused_reduce, materialize
 
 
@@ -117,9 +125,10 @@ def crossover_terms(objective, group_a, group_b, x: Vec, dx: Vec, ddx: Vec):
 
 
 def crossover_function(t, args):
-    """F(t) = q(x, x', G_a) - q(x, x', G_b) and F'(t) (see `crossover_terms`)."""
-    scene, group_a, group_b, objective = args
-    return crossover_terms(objective, group_a, group_b, *scene.components(t))
+    """F(t) = q(x, x', G_a) - q(x, x', G_b) and F'(t) on the curves `curve` (an index per
+    row of t; see `crossover_terms`)."""
+    scene, curve, group_a, group_b, objective = args
+    return crossover_terms(objective, group_a, group_b, *scene.components_at(curve, t))
 
 
 def with_nearest_node(scene, samples: Samples, nearest: Float[Array, " m"]) -> Samples:
@@ -785,22 +794,29 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
 
 def crossover_times(
     scene,
-    group_a: tuple[Vec, ...],
-    group_b: tuple[Vec, ...],
+    members: tuple[tuple[Vec, ...], tuple[Vec, ...]],
+    seen: Bool[Array, "p m"],
     objective,
     samples: Samples,
     budget: int,
     iterations: int,
 ) -> Roots:
-    """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15.
+    """Where two camera groups' q are equal: the kinks of the max in Eq. 3.15, for every
+    pair of groups (`members`: the cameras of each pair's first and of its second group,
+    `Vec`s (p,)) on every curve, arrays (p, m, budget).
+
+    Only the observed curves that both groups of a pair see something of (`seen`) are
+    searched: elsewhere no interval is seen by both, and a kink would cut nothing. These
+    (pair, curve) items are packed and searched a chunk at a time, so that the search
+    costs what the cameras see together, not every pair on every curve.
 
     They carry no derivative: the integrand is continuous across a crossover (both
     groups' q are equal there), so the Leibniz terms of the two intervals that meet at it
     cancel (Eq. 5.9); the cut only keeps the kink out of the quadrature."""
-    scene, objective, ga, gb = jax.lax.stop_gradient((scene, objective, group_a, group_b))
-    # Only the observed curves' crossovers cut Q's intervals: none are searched for on
-    # the room's walls.
-    observed = jnp.asarray(scene.observed())[:, None, None]
+    scene, objective, members = jax.lax.stop_gradient((scene, objective, members))
+    pairs, m = seen.shape
+    candidates = seen & jnp.asarray(scene.observed())[None]
+    size = max(1, CHUNK_ELEMENTS // samples.t.shape[0])  # items per chunk
 
     def resolved(values, slopes, scale):
         # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
@@ -808,20 +824,45 @@ def crossover_times(
         # Hermite interpolant of the noise can dip), so that rounding noise brackets no
         # roots.
         rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
-        values = jnp.where(jnp.abs(values) <= rounding, rounding, values)
-        return jnp.where(observed, values, 1.0), jnp.where(observed, slopes, 0.0)
+        return jnp.where(jnp.abs(values) <= rounding, rounding, values), slopes
 
-    def values_and_slopes(dx, ddx):
-        terms = crossover_terms(objective, ga, gb, samples.x, dx, ddx)
-        return resolved(*(a[:, None] for a in terms))
+    def search(pair, curve):
+        """The roots of the items (pair, curve), index arrays (c,): arrays (c, budget)."""
+        group_a, group_b = (tuple(v.map(lambda a: a[pair, None]) for v in g) for g in members)
+        args = (scene, curve, group_a, group_b, objective)
 
-    # Values on the grid from the sampled derivatives (no new curve evaluations).
-    nodes = samples.at_nodes(values_and_slopes)
-    values, slopes = nodes if samples.dx_end is None else zip(*nodes)
-    args = (scene, ga, gb, objective)
-    probes = dip_probes(lambda t: resolved(*crossover_function(t, args)), samples.t, values, slopes)
-    brackets = grid_brackets(samples.t, values, slopes, budget, probes=probes)
-    t, valid, settled = solve_roots(
-        crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
+        def values_and_slopes(dx, ddx):  # from the sampled derivatives
+            x, dx, ddx = (v.map(lambda a: a[curve]) for v in (samples.x, dx, ddx))
+            return resolved(*crossover_terms(objective, group_a, group_b, x, dx, ddx))
+
+        nodes = samples.at_nodes(values_and_slopes)
+        values, slopes = nodes if samples.dx_end is None else zip(*nodes)
+        probes = dip_probes(
+            lambda t: resolved(*crossover_function(t, args)), samples.t, values, slopes
+        )
+        values, slopes, probes = jax.tree.map(lambda a: a[:, None], (values, slopes, probes))
+        brackets = grid_brackets(samples.t, values, slopes, budget, probes=probes)
+        t, valid, settled = solve_roots(
+            crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
+        )
+        return t, valid, brackets.count, settled
+
+    def step(carry, item, live):
+        t, valid, found, settled = carry
+        pair, curve = item // m, item % m
+        roots, ok, number, done = search(pair, curve)
+        pair = jnp.where(live, pair, pairs)  # (out of range: dropped)
+        return (
+            t.at[pair, curve].set(roots, mode="drop"),
+            valid.at[pair, curve].set(ok, mode="drop"),
+            found.at[pair, curve].set(number, mode="drop"),
+            settled & done,
+        )
+
+    init = (
+        jnp.ones((pairs, m, budget), samples.t.dtype),
+        jnp.zeros((pairs, m, budget), bool),
+        jnp.zeros((pairs, m), int),
+        jnp.asarray(True),
     )
-    return Roots(t, valid, brackets.count, settled)
+    return Roots(*over_chunks(candidates.ravel(), size, step, init))

@@ -34,11 +34,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._geometry.vec import Vec, cross, dot, sub
+from .._geometry.vec import Vec, cross, dot, norm, sub
 from .conics import ConicOccluders, conic_occluded
-from .events import GrazingProbes, PolygonEdges, Samples, grid_cell
-from .roots import cell_ends, hermite_extremum
+from .events import GrazingProbes, PolygonEdges, Samples, bounding_discs, grid_cell
+from .roots import CHUNK_ELEMENTS, cell_ends, hermite_extremum, over_chunks
 from .xla_cpu import computed_on_one_thread, fused_reduce
+
+# Edges whose bounding disc is tested before the edges themselves (`_edge_chunks`).
+_EDGES_PER_CHUNK = 8
 
 
 def in_view(camera, point: Vec) -> Bool[Array, "..."]:
@@ -120,19 +123,56 @@ def deflated_depth(excess, deflator, reach, r, r_mid):
     return in_segment
 
 
-def _crosses_edges(d: Vec, reach, start: Vec, end: Vec) -> Bool[Array, "q e"]:
-    """Whether each straight edge (start, end relative to the camera, arrays (e,)) crosses
-    the open segment from the camera to each query point (d = m - C, reach = |d|^2,
-    arrays (q,)): the sign change of g = cross(d, x - C) between the edge's ends, the one
-    cell of `_crosses_segment` with the depth of `linear_depth`."""
-    d = d.map(lambda a: a[:, None])
-    g0, g1 = cross(d, start.map(lambda a: a[None])), cross(d, end.map(lambda a: a[None]))
-    depth = jnp.stack(
-        [dot(d, start.map(lambda a: a[None])), dot(d, end.map(lambda a: a[None]))], -1
-    )
-    in_segment = linear_depth(depth, reach[:, None, None])
+def _crosses_edges(d: Vec, reach, start: Vec, end: Vec) -> Bool[Array, "..."]:
+    """Whether straight edges (start, end relative to the camera) cross the open segment
+    from the camera to query points (d = m - C, reach = |d|^2), all arrays broadcast
+    against each other: the sign change of g = cross(d, x - C) between the edge's ends,
+    the one cell of `_crosses_segment` with the depth of `linear_depth`."""
+    g0, g1 = cross(d, start), cross(d, end)
+    depth = jnp.stack(jnp.broadcast_arrays(dot(d, start), dot(d, end)), -1)
+    in_segment = linear_depth(depth, jnp.asarray(reach)[..., None])
     crossing = (g0 >= 0) != (g1 >= 0)
     return crossing & in_segment(g0[..., None], (g0 - g1)[..., None], True)[..., 0]
+
+
+def _passes_disc(d: Vec, reach, centre: Vec, radius) -> Bool[Array, "..."]:
+    """Whether the segment from the camera to each query point (d = m - C, reach =
+    |d|^2) meets a disc (centre relative to the camera), arrays broadcast against each
+    other: the distance from the centre to the segment's nearest point is at most the
+    radius (widened by 1e-9 of it, so that rounding keeps every occluder that touches)."""
+    along = jnp.clip(dot(centre, d) / reach, 0.0, 1.0)
+    off = sub(centre, d.map(lambda a: along * a))
+    return dot(off, off) <= (radius * (1.0 + 1e-9)) ** 2
+
+
+def _edge_chunks(curve: np.ndarray) -> np.ndarray:
+    """Runs of at most `_EDGES_PER_CHUNK` consecutive edges of one polygon (`curve`: the
+    polygon of each edge, static): indices (K, _EDGES_PER_CHUNK), padded with -1."""
+    chunks = []
+    for i in np.unique(curve):
+        edges = np.flatnonzero(curve == i)
+        chunks.extend(np.array_split(edges, -(-len(edges) // _EDGES_PER_CHUNK)))
+    table = np.full((len(chunks), _EDGES_PER_CHUNK), -1)
+    for row, edges in zip(table, chunks):
+        row[: len(edges)] = edges
+    return table
+
+
+def _any_blocking(candidates: Bool[Array, "q n"], blocks, cost: int) -> Bool[Array, " q"]:
+    """Whether some occluder blocks each query: `blocks(query, occluder)` (index arrays
+    (p,) -> bool (p,), each pair's test about `cost` elements of work) over the pairs
+    where `candidates` hold. The candidate pairs are packed and tested a chunk at a time
+    (about `CHUNK_ELEMENTS` elements each, `over_chunks`), so that the test costs what
+    the candidates are, not every query against every occluder."""
+    q, n = candidates.shape
+    size = max(1, CHUNK_ELEMENTS // cost)
+
+    def step(blocked, pair, live):
+        query = pair // n
+        hit = live & blocks(query, pair % n)
+        return blocked.at[jnp.where(hit, query, q)].set(True, mode="drop")
+
+    return over_chunks(candidates.ravel(), size, step, jnp.zeros(q, bool))
 
 
 def _deflator(u):
@@ -153,6 +193,40 @@ def facing(camera: Vec, sense: Float[Array, "..."], x_mid: Vec, dx_mid: Vec) -> 
     point's curve, broadcast against the points); a point facing away is hidden by its
     own object."""
     return sense * cross(dx_mid, sub(x_mid, camera)) > 0
+
+
+def _blocked_by_edges(
+    edges: PolygonEdges, camera: Vec, d: Vec, reach, curve, query_piece
+) -> Bool[Array, " q"]:
+    """Whether a polygon's edge crosses the segment from the camera to each query point
+    (d = m - C, reach = |d|^2, arrays (q,)), its own edge aside (the query's `curve` and
+    smooth piece): runs of edges (`_edge_chunks`) are tested only where the segment meets
+    the disc around their ends."""
+    chunks = _edge_chunks(edges.curve)
+    filled = jnp.asarray(chunks >= 0)
+    index = jnp.asarray(np.where(chunks >= 0, chunks, chunks[:, :1]))  # (K, c)
+    start, end = sub(edges.start, camera), sub(edges.end, camera)  # (E,)
+    ends = Vec(*(jnp.concatenate([a[index], b[index]], 1) for a, b in zip(start, end)))
+    centre = ends.map(lambda a: jnp.mean(a, 1))
+    radius = jnp.max(norm(sub(ends, centre.map(lambda a: a[:, None]))), 1)
+    candidates = _passes_disc(
+        d.map(lambda a: a[:, None]), reach[:, None], centre.map(lambda a: a[None]), radius[None]
+    )
+
+    def chunk_blocks(query, chunk):
+        e = index[chunk]  # (p, c)
+        crosses = _crosses_edges(
+            d.map(lambda a: a[query, None]),
+            reach[query, None],
+            start.map(lambda a: a[e]),
+            end.map(lambda a: a[e]),
+        )
+        own = (jnp.asarray(edges.curve)[e] == curve[query, None]) & (
+            jnp.asarray(edges.piece)[e] == query_piece[query, None]
+        )
+        return jnp.any(crosses & ~own & filled[chunk], 1)
+
+    return _any_blocking(candidates, chunk_blocks, chunks.shape[1])
 
 
 def visible_points(
@@ -207,42 +281,46 @@ def visible_points(
         same_piece = pieces[curve] == query_piece[:, None]  # (q, N + 1)
         deflated_cells = deflated_cells & same_piece[:, None]
 
-    # Every curve's cells but those: arrays (q, n, N + 1) on the `rows` tested on the grid
-    # (none for a single smooth curve).
+    # Occluders in closed form first, then the grid's rows only for the queries they
+    # leave unblocked, each row only where the line of sight meets its bounding disc.
     blocked = jnp.zeros(t_mid.shape, bool)
-    dd = d.map(lambda a: a[:, None, None])
-    if len(rows) and (m > 1 or pieces is not None):
-        sight_j = sight.map(lambda a: a[None, rows])
-        dg_j = grid.at_nodes(lambda dx, _: cross(dd, dx.map(lambda a: a[None, rows])))
-        depth_j = linear_depth(dot(dd, sight_j), reach[:, None, None])
-        plain = _crosses_segment(cross(dd, sight_j), dg_j, h[None, rows], depth_j)
-        blocked = fused_reduce(jnp.any, plain & ~deflated_cells[:, rows], (-1, -2))
     if edges is not None:  # every edge but the query's own (tested deflated below)
-        own_edge = (edges.curve[None] == curve[:, None]) & (
-            edges.piece[None] == query_piece[:, None]
-        )
-        blocked = blocked | fused_reduce(
-            jnp.any,
-            _crosses_edges(d, reach, sub(edges.start, camera), sub(edges.end, camera)) & ~own_edge,
-            -1,
-        )
+        blocked = _blocked_by_edges(edges, camera, d, reach, curve, query_piece)
     if conics is not None:
         blocked = blocked | conic_occluded(conics, camera, x_mid, curve)
-    if m > 1 and len(rows):
-        on_other = jax.tree.map(lambda a: a[None, rows], probes)  # (1, n, r)
-        blocked = blocked | fused_reduce(
-            jnp.any,
-            on_other.valid
-            & ~own_row[:, rows, None]
-            & _grazing(
-                cross(dd, on_other.sight),
-                cross(dd, on_other.start),
-                cross(dd, on_other.end),
-                dot(dd, on_other.sight),
-                reach[:, None, None],
-            ),
-            (-1, -2),
+    if len(rows) and (m > 1 or pieces is not None):
+        # Every row's cells but the query's deflated ones, and the grazing probes of the
+        # other rows: arrays (p, N + 2) for p (query, row) pairs.
+        centre, radius = bounding_discs(grid)
+        own = own_row[:, rows]
+        near = _passes_disc(
+            d.map(lambda a: a[:, None]),
+            reach[:, None],
+            sub(centre, camera).map(lambda a: a[None, rows]),
+            radius[None, rows],
         )
+        candidates = (near & ~own if pieces is None else near | own) & ~blocked[:, None]
+
+        def row_blocks(query, row):
+            j = jnp.asarray(rows)[row]
+            dq, reach_q = d.map(lambda a: a[query, None]), reach[query, None]
+            sight_j = sight.map(lambda a: a[j])
+            dg = grid.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[j])))
+            depth = linear_depth(dot(dq, sight_j), reach_q)
+            plain = _crosses_segment(cross(dq, sight_j), dg, h[j], depth)
+            is_own = (j == curve[query])[:, None]
+            deflated = is_own if same_piece is None else is_own & same_piece[query]
+            on = jax.tree.map(lambda a: a[j], probes)  # (p, r)
+            grazing = _grazing(
+                cross(dq, on.sight),
+                cross(dq, on.start),
+                cross(dq, on.end),
+                dot(dq, on.sight),
+                reach_q,
+            )
+            return jnp.any(plain & ~deflated, 1) | jnp.any(on.valid & ~is_own & grazing, 1)
+
+        blocked = blocked | _any_blocking(candidates, row_blocks, grid.t.shape[1])
 
     # The query's own curve: deflate the trivial root at t_mid and its periodic images
     # t_mid -+ 1 (the grid's ends are one point of the curve, and an image next to one

@@ -37,6 +37,8 @@ from .xla_cpu import materialize
 # narrow enough to stop.
 DIP_ITERATIONS = 48
 DIP_TOLERANCE = 1e-7
+# Elements of work per chunk of `over_chunks`: enough to outweigh a loop step's cost.
+CHUNK_ELEMENTS = 1 << 14
 
 
 class Brackets(NamedTuple):
@@ -241,6 +243,28 @@ def first_true(mask: Bool[Array, "*batch n"], size: int):
     index = jnp.vectorize(indices, signature="(n)->(r)")(running)
     filled = jnp.broadcast_to(jnp.arange(size), index.shape) < count[..., None]
     return jnp.where(filled, index, 0), filled, count
+
+
+def over_chunks(mask: Bool[Array, " n"], size: int, step, init):
+    """Folds `carry = step(carry, index, live)` over the indices of the True entries of
+    `mask`, packed `size` at a time (`index`, `live`: arrays (size,), `live` False on the
+    padding of the last chunk), for as many chunks as there are entries: the work
+    follows the count, not the mask's length. A mask no longer than a chunk is one
+    chunk, unpacked."""
+    if mask.shape[0] <= size:
+        return step(init, jnp.arange(mask.shape[0]), mask)
+    index, _, count = first_true(mask, mask.shape[0] + size)
+
+    def body(carry):
+        chunk, inner = carry
+        at = chunk * size
+        packed = jax.lax.dynamic_slice(index, (at,), (size,))
+        return chunk + 1, step(inner, packed, at + jnp.arange(size) < count)
+
+    def running(carry):
+        return carry[0] * size < count
+
+    return jax.lax.while_loop(running, body, (0, init))[1]
 
 
 def cell_ends(nodes):

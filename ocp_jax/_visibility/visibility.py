@@ -603,16 +603,59 @@ def _events(scene: Scene, poses: Camera, objective, options: VisibilityOptions) 
     crossovers = None
     if len(groups) > 1 and not objective.is_constant:
         pairs = np.array(list(itertools.combinations(range(len(groups)), 2)))
-        crossovers = jax.vmap(crossover_times, in_axes=(None, 0, 0, None, None, None, None))(
+        # A group sees something of a curve where each of its cameras does.
+        sees = jnp.all(jnp.any(partitions.visible, -1)[groups], 1)  # (G, m)
+        first, second = groups[pairs[:, 0]], groups[pairs[:, 1]]
+        crossovers = crossover_times(
             scene,
-            group_members(cameras, groups[pairs[:, 0]]),
-            group_members(cameras, groups[pairs[:, 1]]),
+            (group_members(cameras, first), group_members(cameras, second)),
+            sees[pairs[:, 0]] & sees[pairs[:, 1]],
             objective,
             samples,
             options.max_crossovers,
             options.newton_iterations,
         )
     return Events(partitions, groups, crossovers, samples, sense, cameras, poses, nearest)
+
+
+def _viewable(
+    partitions: CameraPartition,
+    curve: Int[Array, " e"],
+    start: Float[Array, " e"],
+    column: Int[Array, " e"],
+    offset: int,
+) -> Bool[Array, "k e"]:
+    """Whether each camera sees each union interval (`_value`): interval j, on curve
+    `curve[j]` from `start[j]`, lies in the interval of camera c that starts at the last
+    of c's events at or before its start in the union's order (c's first interval if
+    none). The union is sorted stably from the other pieces (columns before `offset`) and
+    then every camera's row of events in turn (`column`: the union's column that starts
+    interval j), so in a tie with the start, c's events come before it where c's row
+    comes before the start's (after it for the other pieces and for cameras after c),
+    and a start that is c's own slot s follows s + 1 of c's events. The count is a
+    binary search of c's sorted row: O(k e log L), no array over the whole union per
+    camera.
+
+    Where an event ties with another piece (a panel breakpoint, say), the zero-length
+    interval between them comes before the event and is looked up on the event's near
+    side: its end carries the event's derivative, which belongs to the interval after it
+    (Leibniz)."""
+    events, visible = jax.lax.stop_gradient(partitions.events), partitions.visible
+    k, _, slots = events.shape
+    source = jnp.where(column >= offset, (column - offset) // slots, -1)
+    camera = jnp.arange(k)[:, None]
+    tie_before = camera < source[None]  # (k, e)
+    row = curve[None]
+    lo, hi = jnp.zeros((k, start.shape[0]), int), jnp.full((k, start.shape[0]), slots)
+    for _ in range(int(slots).bit_length()):  # lo: the count of c's events before it
+        mid = (lo + hi) // 2
+        at = events[camera, row, jnp.minimum(mid, slots - 1)]
+        before = (at < start) | ((at == start) & tie_before)
+        active = lo < hi
+        lo, hi = jnp.where(active & before, mid + 1, lo), jnp.where(active & ~before, mid, hi)
+    own = (column - offset) % slots + 1
+    count = jnp.where(camera == source[None], own[None], lo)
+    return visible[camera, row, jnp.maximum(count - 1, 0)]
 
 
 def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
@@ -629,13 +672,14 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     if crossovers is not None:
         pieces.extend(crossovers.t)
     # (the cameras' events last: in a tie, the stable sort puts them after the other
-    # pieces, as the viewability lookup below needs; each labelled with its camera)
+    # pieces, as the viewability lookup `_viewable` needs, which reads each union
+    # entry's column)
     camera_events = partitions.events  # (k, m, L)
     k, m, per_row = camera_events.shape
     others = jnp.concatenate(pieces, 1)
     rows = jnp.concatenate([others, jnp.moveaxis(camera_events, 0, 1).reshape(m, -1)], 1)
-    labels = np.concatenate([np.full(others.shape[1], -1), np.repeat(np.arange(k), per_row)])
-    union, source = sorted_rows(rows, jnp.broadcast_to(jnp.asarray(labels), rows.shape))
+    columns = jnp.broadcast_to(jnp.arange(rows.shape[1]), rows.shape)
+    union, column = sorted_rows(rows, columns)
     # Padded events sit at t = 1 (the end of each row): the intervals that start before
     # it, over the whole scene, are integrated as one flat list (at most `budget` of
     # them). Every camera repeats the corners among its events (zero-length intervals);
@@ -654,16 +698,13 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     start = jnp.where(filled, starts.ravel()[index], 1.0)
     end = jnp.where(filled, ends.ravel()[index], 1.0)
 
-    # Viewability matrix: union interval j lies in the interval of camera c that starts
-    # at the last of c's events at or before it in the sorted row (its first interval
-    # before its first event). Where an event ties with another piece (a panel
-    # breakpoint, say), the zero-length interval between them comes before the event and
-    # is looked up on the event's near side: its end carries the event's derivative,
-    # which belongs to the interval after it (Leibniz). (Ties between two cameras' events
-    # are left to the sort's order.)
-    counts = jnp.cumsum(source[None] == jnp.arange(k)[:, None, None], -1)  # (k, m, U)
-    seen = jnp.take_along_axis(partitions.visible, jnp.maximum(counts - 1, 0), -1)
-    seen = seen.reshape(k, -1)[:, index]
+    seen = _viewable(
+        partitions,
+        curve,
+        jax.lax.stop_gradient(start),
+        column.ravel()[index],
+        others.shape[1],
+    )
     seen = seen & jnp.asarray(scene.observed())[curve][None] & filled[None]
     seen_by_group = jnp.all(seen[events.groups], axis=1)  # (G, e)
 
