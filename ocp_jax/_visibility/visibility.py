@@ -650,7 +650,7 @@ def _viewable(
     for _ in range(int(slots).bit_length()):  # lo: the count of c's events before it
         mid = (lo + hi) // 2
         at = events[camera, row, jnp.minimum(mid, slots - 1)]
-        before = (at < start) | ((at == start) & tie_before)
+        before = (at < start[None]) | ((at == start[None]) & tie_before)
         active = lo < hi
         lo, hi = jnp.where(active & before, mid + 1, lo), jnp.where(active & ~before, mid, hi)
     own = (column - offset) % slots + 1
