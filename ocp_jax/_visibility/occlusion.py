@@ -256,7 +256,10 @@ def visible_points(
     sign between its ends at a depth in (0, |d|^2), the test of its cells taken at once.
     The grid's rows of the polygons are then left out of the test of other curves, and so
     are those of the `conics` (`_conics.conic_occluders`), whose crossings of the segment
-    are the roots of a quadratic (`conic_occluded`)."""
+    are the roots of a quadratic (`conic_occluded`). An occluder is tested against a query
+    only where the segment (C, m) meets its bounding disc (a run of edges, a curve's
+    row), and a curve's row only for the queries that no closed form has blocked: the
+    test costs what can block, not every query against every occluder (`over_chunks`)."""
     m = grid.t.shape[0]
     # The rows tested on the grid: every curve but the polygons and conics given.
     rows = np.arange(m)
