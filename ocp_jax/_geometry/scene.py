@@ -56,6 +56,7 @@ class Scene(eqx.Module):
 
     curves: tuple[AbstractCurve, ...]
     room: bool = eqx.field(static=True)
+    groups: tuple["CurveGroup", ...]
 
     def __init__(self, curves: Sequence[AbstractCurve], room: AbstractCurve | None = None):
         if isinstance(curves, AbstractCurve):
@@ -77,6 +78,17 @@ class Scene(eqx.Module):
             curves = checked_under_trace(curves, room is not None)
         self.curves = curves
         self.room = room is not None
+        self.groups = _grouped(curves)
+
+    @classmethod
+    def _of_checked(cls, curves: tuple[AbstractCurve, ...], room: bool) -> "Scene":
+        """A scene of curves that are already known to form a valid scene (they come
+        from a checked one), built without checking them again."""
+        scene = object.__new__(cls)
+        object.__setattr__(scene, "curves", curves)
+        object.__setattr__(scene, "room", room)
+        object.__setattr__(scene, "groups", _grouped(curves))
+        return scene
 
     @property
     def objects(self) -> tuple[AbstractCurve, ...]:
@@ -98,43 +110,23 @@ class Scene(eqx.Module):
     def dtype(self):
         return jnp.result_type(*jax.tree.leaves(self.curves))
 
-    def _groups(self) -> list[tuple[list[int], AbstractCurve]]:
-        """The curves evaluated together: every group's curve indices, and its curves
-        as one pytree. Curves made of Bezier segments (`AbstractCurve.bezier_pieces`) are
-        one group per degree, evaluated from one table (`PieceTable`, at row 0); other
-        curves are grouped by type and shape and stacked along a leading axis (a curve
-        alone in its group: itself)."""
-        pieces = [c.bezier_pieces() for c in self.curves]
-        groups: dict = {}
-        for i, (c, p) in enumerate(zip(self.curves, pieces)):
-            key = ("pieces", p.shape[1]) if p is not None else _structure(c)
-            groups.setdefault(key, []).append(i)
-        out = []
-        for key, group in groups.items():
-            if key[0] == "pieces":
-                table, counts = piece_table([pieces[i] for i in group], self.dtype)
-                form = PieceTable(table, counts, jnp.asarray(0))
-            elif len(group) == 1:
-                form = self.curves[group[0]]
-            else:
-                form = jax.tree.map(lambda *xs: jnp.stack(xs), *(self.curves[i] for i in group))
-            out.append((group, form))
-        return out
-
     def _map(self, fn, *args):
         """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
         results are stacked along a leading curve axis. A curve alone in its group is
         not vmapped (a batch of one only makes the program longer to trace)."""
         outputs, order = [], []
-        for group, form in self._groups():
-            if len(group) == 1:
-                (i,) = group
+        for group in self.groups:
+            members, form = list(group.members), group.form
+            if len(members) == 1:
+                (i,) = members
                 out = fn(form, *(a[i] for a in args))
                 outputs.append(jax.tree.map(lambda a: a[None], out))
             else:
-                rows = [a if len(group) == len(self.curves) else a[np.asarray(group)] for a in args]
+                rows = [
+                    a if len(members) == len(self.curves) else a[np.asarray(members)] for a in args
+                ]
                 outputs.append(_rows_vmapped(fn, form, None, rows))
-            order.extend(group)
+            order.extend(members)
         if len(outputs) == 1:
             return outputs[0]
         inverse = np.argsort(np.asarray(order))
@@ -147,17 +139,17 @@ class Scene(eqx.Module):
         type and shape is evaluated at every element, with the element's curve's
         parameters gathered, and the element keeps its own group's result: the cost is
         that of the elements times the number of groups, not of the curves."""
-        groups = self._groups()
         group_of, local = np.zeros(len(self.curves), int), np.zeros(len(self.curves), int)
-        for g, (group, _) in enumerate(groups):
-            group_of[group], local[group] = g, np.arange(len(group))
+        for g, group in enumerate(self.groups):
+            members = list(group.members)
+            group_of[members], local[members] = g, np.arange(len(members))
         outputs = []
-        for group, form in groups:
-            if len(group) == 1:  # (all of t at once)
-                outputs.append(fn(form, t))
+        for group in self.groups:
+            if len(group.members) == 1:  # (all of t at once)
+                outputs.append(fn(group.form, t))
             else:
                 own = jnp.asarray(local)[curve]
-                outputs.append(_rows_vmapped(fn, form, own, [t], out_axes=axis))
+                outputs.append(_rows_vmapped(fn, group.form, own, [t], out_axes=axis))
         if len(outputs) == 1:
             return outputs[0]
         group = jnp.asarray(group_of)[curve]
@@ -207,8 +199,7 @@ class Scene(eqx.Module):
 
     def in_frame(self, origin: Float[Array, "2"], scale: Float[Array, ""]) -> "Scene":
         """The same scene in the coordinates (x - origin) / scale."""
-        curves = tuple(c.in_frame(origin, scale) for c in self.curves)
-        return eqx.tree_at(lambda s: s.curves, self, curves)
+        return Scene._of_checked(tuple(c.in_frame(origin, scale) for c in self.curves), self.room)
 
     @property
     def has_corners(self) -> bool:
@@ -249,10 +240,7 @@ class Scene(eqx.Module):
         rows alone: they are curves of this checked scene, so they are not checked again."""
         if np.array_equal(rows, np.arange(len(self.curves))) and not self.room:
             return self
-        scene = object.__new__(Scene)
-        object.__setattr__(scene, "curves", tuple(self.curves[i] for i in rows))
-        object.__setattr__(scene, "room", False)
-        return scene
+        return Scene._of_checked(tuple(self.curves[i] for i in rows), False)
 
     def conic(self) -> np.ndarray:
         """Static (m,) array: which curves are conics (whose crossings of a line have
@@ -298,8 +286,41 @@ class Scene(eqx.Module):
         return jnp.stack([jnp.pad(p, (0, width - p.shape[0]), constant_values=1.0) for p in points])
 
 
+class CurveGroup(eqx.Module):
+    """Curves of a scene evaluated together: `members` (their static indices in the
+    scene) and `form`, one curve pytree for all of them. Curves made of Bezier segments
+    (`AbstractCurve.bezier_pieces`) are one group per degree, as one `PieceTable` (at
+    row 0); other curves are grouped by type and shape and stacked along a leading axis
+    (a curve alone in its group: itself)."""
+
+    members: tuple[int, ...] = eqx.field(static=True)
+    form: AbstractCurve
+
+
+def _grouped(curves: tuple[AbstractCurve, ...]) -> tuple[CurveGroup, ...]:
+    """The `CurveGroup`s of a scene's curves. A scene stores them, so that the tables are
+    built once (where the scene is built), not at every evaluation."""
+    dtype = jnp.result_type(*jax.tree.leaves(curves))
+    pieces = [c.bezier_pieces() for c in curves]
+    groups: dict = {}
+    for i, (c, p) in enumerate(zip(curves, pieces)):
+        key = ("pieces", p.shape[1]) if p is not None else _structure(c)
+        groups.setdefault(key, []).append(i)
+    out = []
+    for key, group in groups.items():
+        if key[0] == "pieces":
+            table, counts = piece_table([pieces[i] for i in group], dtype)
+            form = PieceTable(table, counts, jnp.asarray(0))
+        elif len(group) == 1:
+            form = curves[group[0]]
+        else:
+            form = jax.tree.map(lambda *xs: jnp.stack(xs), *(curves[i] for i in group))
+        out.append(CurveGroup(tuple(group), form))
+    return tuple(out)
+
+
 def _rows_vmapped(fn, form: AbstractCurve, index, args: list, out_axes: int = 0):
-    """`fn(curve, *args_j)` vmapped over j on the curves of a group (`Scene._groups`):
+    """`fn(curve, *args_j)` vmapped over j on the curves of a group (`CurveGroup`):
     the curve `index[j]` (all in turn where None) and the j-th rows of `args`. A table's
     rows are picked by their index; stacked curves are gathered where `index` is given."""
     if isinstance(form, PieceTable):
