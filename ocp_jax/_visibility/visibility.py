@@ -484,17 +484,19 @@ def _best_group(scene: Scene, curve, start, end, members, objective, seen):
     rows = frozen_scene.point_and_tangent_at(curve, middle)
     x, dx = Vec(rows[0], rows[1]), Vec(rows[2], rows[3])
 
-    # A maximum of G terms, not a reduction over a stacked (G, e) array: XLA's CPU
-    # backend runs such a reduction over a short leading axis as kernels of its own.
-    def seen_by(g):  # (chi q of group g, whether it sees the interval, g)
+    def seen_by(g):  # chi q of group g on each interval, and whether g sees it
         q = frozen_objective.evaluate(x, dx, *(c.map(lambda a: a[g]) for c in frozen_members))
-        return jnp.where(seen[g], q, 0.0), seen[g], jnp.full(curve.shape, g)
+        return jnp.where(seen[g], q, 0.0), seen[g]
 
-    def larger(a, b):  # the larger chi q; in a tie, a group that sees the interval
-        better = (b[0] > a[0]) | ((b[0] == a[0]) & b[1] & ~a[1])
-        return tuple(jnp.where(better, v, u) for u, v in zip(a, b))
+    def larger(g, best):  # the larger chi q; in a tie, a group that sees the interval
+        q, sees, index = best
+        q_g, sees_g = seen_by(g)
+        better = (q_g > q) | ((q_g == q) & sees_g & ~sees)
+        return tuple(jnp.where(better, new, old) for new, old in zip((q_g, sees_g, g), best))
 
-    best = functools.reduce(larger, map(seen_by, range(seen.shape[0])))[2]
+    # (a loop over the groups: the program does not grow with their number)
+    first = (*seen_by(0), jnp.zeros(curve.shape, int))
+    best = jax.lax.fori_loop(1, seen.shape[0], larger, first)[2]
     chosen = tuple(c.map(lambda a: a[best][:, None]) for c in members)
     return chosen, jnp.take_along_axis(seen, best[None], 0)[0]
 
@@ -669,8 +671,8 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
     cut = not objective.is_constant
     if cut:
         pieces.append(events.nearest.t)
-    if crossovers is not None:
-        pieces.extend(crossovers.t)
+    if crossovers is not None:  # (pairs, m, budget): one row of m per curve
+        pieces.append(jnp.moveaxis(crossovers.t, 0, 1).reshape(crossovers.t.shape[1], -1))
     # (the cameras' events last: in a tie, the stable sort puts them after the other
     # pieces, as the viewability lookup `_viewable` needs, which reads each union
     # entry's column)
