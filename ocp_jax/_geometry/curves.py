@@ -500,6 +500,11 @@ class AbstractConic(AbstractCurve):
     def _lengths(self) -> Array:
         """The field of its lengths (radius, semi-axes), beside its `center`."""
 
+    @abc.abstractmethod
+    def as_ellipse(self) -> "Ellipse":
+        """The same curve, with the same parameter, as an `Ellipse`: the scene evaluates
+        all its conics as one stack of ellipses (`Scene`)."""
+
     def bounds(self):
         reach = jnp.max(jnp.abs(self._lengths()))  # (|.|: not checked under jit)
         return self.center - reach, self.center + reach
@@ -549,6 +554,9 @@ class Circle(AbstractConic):
 
     def _lengths(self):
         return self.radius
+
+    def as_ellipse(self):
+        return Ellipse(self.center, jnp.stack([self.radius, self.radius]))
 
 
 class Ellipse(AbstractConic):
@@ -603,6 +611,9 @@ class Ellipse(AbstractConic):
 
     def _lengths(self):
         return self.semi_axes
+
+    def as_ellipse(self):
+        return self
 
     def panels(self):
         return 8
@@ -801,17 +812,19 @@ class PieceTable(AbstractCurve):
     - `table`: (m, S, d + 1, 2), path i's segments, the last repeated past its own.
     - `counts`: (m,), each path's number of segments n_i (segment j is traced for t in
       [j/n_i, (j+1)/n_i)).
-    - `row`: which path this is.
+    - `row`: which path this is (None: the first; a scene stores its tables so, with
+      no integer leaf, which `jax.grad` over a scene would refuse).
     """
 
     table: Float[Array, "m s d1 2"]
     counts: Float[Array, " m"]
-    row: Int[Array, ""]
+    row: Int[Array, ""] | None = None
 
     def _components(self, t, left: bool):
         degree = self.table.shape[-2] - 1
-        n = self.counts[self.row]
-        return _segment_components(lambda j: self.table[self.row, j], n, degree, t, left)
+        row = 0 if self.row is None else self.row
+        n = self.counts[row]
+        return _segment_components(lambda j: self.table[row, j], n, degree, t, left)
 
     def components(self, t):
         return self._components(t, left=False)
@@ -820,7 +833,7 @@ class PieceTable(AbstractCurve):
         return self._components(t, left=True)
 
     def bounds(self):
-        return _point_bounds(self.table[self.row])
+        return _point_bounds(self.table[0 if self.row is None else self.row])
 
 
 def piece_table(pieces: list[Array], dtype) -> tuple[Array, Array]:

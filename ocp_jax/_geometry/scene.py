@@ -34,11 +34,11 @@ class Scene(eqx.Module):
     """The objects x_1..x_m of a scene (Sec. 2.1), as a pytree of curves, optionally
     inside a room.
 
-    Curves are evaluated in groups, so that a scene of many objects compiles to a few
-    evaluations, not one per object: polygons and other `PiecewiseCurve`s as Bezier
-    segments (`AbstractCurve.bezier_pieces`), one table per degree whatever their number
-    of segments, and other curves (B-splines, Bezier curves, conics) stacked by type and
-    shape.
+    Curves are evaluated in groups (`CurveGroup`), so that a scene of many objects
+    compiles to a few evaluations, not one per object: paths of Bezier segments
+    (polygons and other `PiecewiseCurve`s, `AbstractCurve.bezier_pieces`) as one table
+    per degree whatever their number of segments, conics as one stack of ellipses, and
+    other curves (B-splines, Bezier curves) stacked by type and shape.
 
     The curves must form a valid scene: each simple, no two crossing, touching or
     nested, all inside the room. Built from concrete arrays, an invalid scene raises a
@@ -56,7 +56,7 @@ class Scene(eqx.Module):
 
     curves: tuple[AbstractCurve, ...]
     room: bool = eqx.field(static=True)
-    groups: tuple["CurveGroup", ...]
+    groups: tuple["CurveGroup", ...] | None
 
     def __init__(self, curves: Sequence[AbstractCurve], room: AbstractCurve | None = None):
         if isinstance(curves, AbstractCurve):
@@ -78,12 +78,15 @@ class Scene(eqx.Module):
             curves = checked_under_trace(curves, room is not None)
         self.curves = curves
         self.room = room is not None
-        self.groups = _grouped(curves)
+        self.groups = None
 
     @classmethod
     def _of_checked(cls, curves: tuple[AbstractCurve, ...], room: bool) -> "Scene":
         """A scene of curves that are already known to form a valid scene (they come
-        from a checked one), built without checking them again."""
+        from a checked one), built without checking them again, with its `CurveGroup`s
+        built once: the engine evaluates its scene, in its frame (`in_frame`), at many
+        places, and each would build the tables again. (A user's scene stores none, so
+        that its only leaves, and so its derivatives, are its curves'.)"""
         scene = object.__new__(cls)
         object.__setattr__(scene, "curves", curves)
         object.__setattr__(scene, "room", room)
@@ -110,12 +113,15 @@ class Scene(eqx.Module):
     def dtype(self):
         return jnp.result_type(*jax.tree.leaves(self.curves))
 
+    def _curve_groups(self) -> tuple["CurveGroup", ...]:
+        return _grouped(self.curves) if self.groups is None else self.groups
+
     def _map(self, fn, *args):
         """Apply `fn(curve, *row_args)` to every curve i with the i-th rows of `args`;
         results are stacked along a leading curve axis. A curve alone in its group is
         not vmapped (a batch of one only makes the program longer to trace)."""
         outputs, order = [], []
-        for group in self.groups:
+        for group in self._curve_groups():
             members, form = list(group.members), group.form
             if len(members) == 1:
                 (i,) = members
@@ -140,11 +146,12 @@ class Scene(eqx.Module):
         parameters gathered, and the element keeps its own group's result: the cost is
         that of the elements times the number of groups, not of the curves."""
         group_of, local = np.zeros(len(self.curves), int), np.zeros(len(self.curves), int)
-        for g, group in enumerate(self.groups):
+        groups = self._curve_groups()
+        for g, group in enumerate(groups):
             members = list(group.members)
             group_of[members], local[members] = g, np.arange(len(members))
         outputs = []
-        for group in self.groups:
+        for group in groups:
             if len(group.members) == 1:  # (all of t at once)
                 outputs.append(fn(group.form, t))
             else:
@@ -289,9 +296,10 @@ class Scene(eqx.Module):
 class CurveGroup(eqx.Module):
     """Curves of a scene evaluated together: `members` (their static indices in the
     scene) and `form`, one curve pytree for all of them. Curves made of Bezier segments
-    (`AbstractCurve.bezier_pieces`) are one group per degree, as one `PieceTable` (at
-    row 0); other curves are grouped by type and shape and stacked along a leading axis
-    (a curve alone in its group: itself)."""
+    (`AbstractCurve.bezier_pieces`) are one group per degree, as one `PieceTable`;
+    conics are one group of `Ellipse`s (`AbstractConic.as_ellipse`); other curves are
+    grouped by type and shape and stacked along a leading axis (a curve alone in its
+    group: itself)."""
 
     members: tuple[int, ...] = eqx.field(static=True)
     form: AbstractCurve
@@ -302,6 +310,7 @@ def _grouped(curves: tuple[AbstractCurve, ...]) -> tuple[CurveGroup, ...]:
     built once (where the scene is built), not at every evaluation."""
     dtype = jnp.result_type(*jax.tree.leaves(curves))
     pieces = [c.bezier_pieces() for c in curves]
+    curves = tuple(c.as_ellipse() if isinstance(c, AbstractConic) else c for c in curves)
     groups: dict = {}
     for i, (c, p) in enumerate(zip(curves, pieces)):
         key = ("pieces", p.shape[1]) if p is not None else _structure(c)
@@ -310,7 +319,7 @@ def _grouped(curves: tuple[AbstractCurve, ...]) -> tuple[CurveGroup, ...]:
     for key, group in groups.items():
         if key[0] == "pieces":
             table, counts = piece_table([pieces[i] for i in group], dtype)
-            form = PieceTable(table, counts, jnp.asarray(0))
+            form = PieceTable(table, counts)
         elif len(group) == 1:
             form = curves[group[0]]
         else:
