@@ -822,9 +822,12 @@ class PieceTable(AbstractCurve):
 
     def _components(self, t, left: bool):
         degree = self.table.shape[-2] - 1
-        row = 0 if self.row is None else self.row
-        n = self.counts[row]
-        return _segment_components(lambda j: self.table[row, j], n, degree, t, left)
+        n = self.counts[self._row]
+        return _segment_components(lambda j: self.table[self._row, j], n, degree, t, left)
+
+    @property
+    def _row(self):
+        return 0 if self.row is None else self.row
 
     def components(self, t):
         return self._components(t, left=False)
@@ -833,7 +836,7 @@ class PieceTable(AbstractCurve):
         return self._components(t, left=True)
 
     def bounds(self):
-        return _point_bounds(self.table[0 if self.row is None else self.row])
+        return _point_bounds(self.table[self._row])
 
 
 def piece_table(pieces: list[Array], dtype) -> tuple[Array, Array]:
