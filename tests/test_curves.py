@@ -278,6 +278,8 @@ def test_scene_evaluates_every_curve():
     ]
     scene = ocp.Scene(curves)
     assert len(scene) == 5
+    # a user's scene shows its curves and room, not the engine's evaluation groups
+    assert "curves=" in repr(scene) and "groups" not in repr(scene)
     t = np.stack([T_SMOOTH + 0.001 * i for i in range(5)])
     x, dx, ddx = (np.asarray(a) for a in scene.derivatives(jnp.asarray(t)))
     for i, c in enumerate(curves):

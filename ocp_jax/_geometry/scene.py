@@ -56,7 +56,8 @@ class Scene(eqx.Module):
 
     curves: tuple[AbstractCurve, ...]
     room: bool = eqx.field(static=True)
-    groups: tuple["CurveGroup", ...] | None
+    # None on a user's scene (only the engine's store them, `_of_checked`): not shown
+    groups: tuple["CurveGroup", ...] | None = eqx.field(repr=False)
 
     def __init__(self, curves: Sequence[AbstractCurve], room: AbstractCurve | None = None):
         if isinstance(curves, AbstractCurve):
