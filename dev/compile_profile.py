@@ -20,20 +20,9 @@ import time
 
 
 def _measure(args):
-    import jax
+    from floor_program import value_and_grad_program
 
-    jax.config.update("jax_enable_x64", True)
-    import ocp_jax as ocp
-
-    if args.scene == "floor":
-        scene = ocp.scenes.floor(args.seed, args.cells, max(1, args.cells // 2), jagged=1.0)
-        cameras = ocp.scenes.free_points(scene, args.cameras, args.seed)
-    else:
-        scene = getattr(ocp.scenes, args.scene)()
-        cameras = ocp.scenes.free_points(scene, args.cameras, args.seed)
-    objective = ocp.Foreshortened()
-    options = ocp.fit_options(scene, cameras, objective)
-    fn = jax.jit(jax.value_and_grad(lambda c: ocp.visibility(scene, c, objective, options)))
+    fn, cameras, scene = value_and_grad_program(args.scene, args.cells, args.cameras, args.seed)
     start = time.perf_counter()
     traced = fn.trace(cameras)
     traced_at = time.perf_counter()

@@ -18,10 +18,7 @@ import tempfile
 import time
 
 import jax
-
-jax.config.update("jax_enable_x64", True)
-
-import ocp_jax as ocp
+from floor_program import value_and_grad_program
 
 
 def main():
@@ -32,11 +29,7 @@ def main():
     parser.add_argument("--top", type=int, default=30)
     args = parser.parse_args()
 
-    scene = ocp.scenes.floor(args.seed, args.cells, max(1, args.cells // 2), jagged=1.0)
-    cameras = ocp.scenes.free_points(scene, args.cameras, args.seed)
-    objective = ocp.Foreshortened()
-    options = ocp.fit_options(scene, cameras, objective)
-    fn = jax.jit(jax.value_and_grad(lambda c: ocp.visibility(scene, c, objective, options)))
+    fn, cameras, _ = value_and_grad_program("floor", args.cells, args.cameras, args.seed)
     compiled = fn.lower(cameras).compile()
     jax.block_until_ready(compiled(cameras))
     start = time.perf_counter()

@@ -29,7 +29,7 @@ _modules: dict[str, collections.Counter] = collections.defaultdict(collections.C
 def _record(event: str, duration: float, **_):
     if _current is not None and event in _EVENTS:
         _current[_EVENTS[event]] += duration
-        if event.endswith("backend_compile_duration"):
+        if _EVENTS[event] == "compile":
             _current["compilations"] += 1
 
 
