@@ -88,8 +88,9 @@ def test_mixed_floor_matches_reference(case):
 
 def test_occluders_and_crossovers_in_many_chunks_match_reference(monkeypatch):
     """With chunks of a few pairs (`roots.over_chunks`), the occlusion test's (query,
-    occluder) pairs and the crossovers' (pair, curve) items are packed and looped over
-    in many steps: Q still matches the reference (1e-12 relative)."""
+    occluder) pairs, its queries on their own curves and the crossovers' (pair, curve)
+    items are packed and looped over in many steps: Q still matches the reference (1e-12
+    relative)."""
     monkeypatch.setattr(_events, "CHUNK_ELEMENTS", 256)
     monkeypatch.setattr(_occlusion, "CHUNK_ELEMENTS", 256)
     assert _mixed_floor_error("every kind, 4 cameras") <= 1e-12

@@ -229,6 +229,89 @@ def _blocked_by_edges(
     return _any_blocking(candidates, chunk_blocks, chunks.shape[1])
 
 
+def _hidden_by_own_curve(
+    camera: Vec,
+    grid: Samples,
+    probes: GrazingProbes,
+    one_thread: bool,
+    curve: Int[Array, " q"],
+    t_mid: Float[Array, " q"],
+    query_cell: Int[Array, " q"],
+    d: Vec,
+    reach: Float[Array, " q"],
+    r_mid: Float[Array, " q"],
+    slope_mid: Float[Array, " q"],
+    same_piece: Bool[Array, "q n"] | None,
+) -> Bool[Array, " q"]:
+    """Whether the query point's own curve crosses the segment from the camera to it
+    (d = m - C, reach = |d|^2, r_mid = cross(d, x'(t_mid)), slope_mid = d . x'(t_mid),
+    arrays (q,); `same_piece`: the cells of the query's smooth piece, the others being
+    tested as other curves are).
+
+    The trivial root at t_mid and its periodic images t_mid -+ 1 are deflated (the
+    grid's ends are one point of the curve, and an image next to one would leave g a
+    root there that rounding puts on either side of it), with p = u (1 - u) (1 + u),
+    u = t - t_mid: r = g / p, r' = (g' - r p') / p; at a node on a root of p, r takes its
+    limit g'(t_mid) / p' and r' is set to 0 (not its limit; the cell's interpolant only
+    needs it roughly); and the depth's excess over the query point's,
+    e = (D - reach) / p -> x'(t_mid) . d / p' there. Arrays (q, N + 2), the own curve's
+    row of the grid."""
+    dq = d.map(lambda a: a[:, None])
+    own_sight = sub(grid.x, camera).map(lambda a: a[curve])
+    g = cross(dq, own_sight)
+    u = grid.t[curve] - t_mid[:, None]
+    deflator = _deflator(u)
+    deflator_slope = 1.0 - 3.0 * u * u
+    tolerance = 1e4 * jnp.finfo(u.dtype).eps
+    near = (jnp.abs(u) <= tolerance) | (jnp.abs(1.0 - jnp.abs(u)) <= tolerance)
+    divisor = jnp.where(near, 1.0, deflator)
+    r_mid = r_mid[:, None]
+    r = jnp.where(near, r_mid / deflator_slope, g / divisor)
+    reach_q = reach[:, None]
+    excess = jnp.where(
+        near, slope_mid[:, None] / deflator_slope, (dot(dq, own_sight) - reach_q) / divisor
+    )
+
+    # Next to a root of p, r' = (g' - r p') / p cancels: r's rounding error (eps |d|
+    # |x - C| / |p|) is divided by p again. Within eps^(1/3) of one (6e-6 in float64,
+    # 5e-3 in float32) r' is set to 0 too: a query point 1e-10 from a node (the
+    # midpoint of an arc between two events beside corners) took a slope of -200 for
+    # 0.14 there, and its cell's interpolant a pair of crossings that hid it.
+    flat = float(jnp.finfo(u.dtype).eps) ** (1 / 3)
+    flat = (jnp.abs(u) <= flat) | (jnp.abs(1.0 - jnp.abs(u)) <= flat)
+
+    dg = grid.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[curve])))
+    dr = jax.tree.map(lambda s: jnp.where(flat, 0.0, (s - r * deflator_slope) / divisor), dg)
+
+    def crosses_own(r, dr, h, excess, deflator, reach, r_mid, same_piece):
+        in_segment = deflated_depth(excess, deflator, reach, r, r_mid)
+        crosses = _crosses_segment(r, dr, h, in_segment)
+        if same_piece is not None:  # (the other pieces' cells are tested as other curves)
+            crosses = crosses & same_piece
+        return fused_reduce(jnp.any, crosses)
+
+    args = (r, dr, jnp.diff(grid.t)[curve], excess, deflator, reach_q, r_mid, same_piece)
+    own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
+
+    # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)
+    # and r at the ends of their cells; not in the query point's own cell, where r is
+    # deflated and the side of a crossing is decided as above.
+    on_own = jax.tree.map(lambda a: a[curve], probes)  # (q, r)
+    return own | fused_reduce(
+        jnp.any,
+        on_own.valid
+        & (on_own.cell != query_cell[:, None])
+        & _grazing(
+            cross(dq, on_own.sight) * _deflator(on_own.t - t_mid[:, None]),
+            jnp.take_along_axis(r, on_own.cell, -1),
+            jnp.take_along_axis(r, on_own.cell + 1, -1),
+            dot(dq, on_own.sight),
+            reach_q,
+        ),
+        -1,
+    )
+
+
 def visible_points(
     camera: Vec,
     grid: Samples,
@@ -278,11 +361,9 @@ def visible_points(
     # grows as the jump of g' over the distance to t_m, and the cell's Hermite
     # interpolant turns and shows a pair of crossings).
     same_piece = None
-    deflated_cells = own_row[..., None]
     if pieces is not None:
         query_piece = pieces[curve, query_cell]
         same_piece = pieces[curve] == query_piece[:, None]  # (q, N + 1)
-        deflated_cells = deflated_cells & same_piece[:, None]
 
     # Occluders in closed form first, then the grid's rows only for the queries they
     # leave unblocked, each row only where the line of sight meets its bounding disc.
@@ -325,68 +406,32 @@ def visible_points(
 
         blocked = blocked | _any_blocking(candidates, row_blocks, grid.t.shape[1])
 
-    # The query's own curve: deflate the trivial root at t_mid and its periodic images
-    # t_mid -+ 1 (the grid's ends are one point of the curve, and an image next to one
-    # would leave g a root there that rounding puts on either side of it), with
-    # p = u (1 - u) (1 + u), u = t - t_mid: r = g / p, r' = (g' - r p') / p; at a node
-    # on a root of p, r takes its limit g'(t_mid) / p' and r' is set to 0 (not its
-    # limit; the cell's interpolant only needs it roughly); and the depth's excess over
-    # the query point's, e = (D - reach) / p -> x'(t_mid) . d / p' there. Arrays
-    # (q, N + 2), the own curve's row of the grid.
-    dq = d.map(lambda a: a[:, None])
-    own_sight = sight.map(lambda a: a[curve])
-    g = cross(dq, own_sight)
-    u = grid.t[curve] - t_mid[:, None]
-    deflator = _deflator(u)
-    deflator_slope = 1.0 - 3.0 * u * u
-    tolerance = 1e4 * jnp.finfo(u.dtype).eps
-    near = (jnp.abs(u) <= tolerance) | (jnp.abs(1.0 - jnp.abs(u)) <= tolerance)
-    divisor = jnp.where(near, 1.0, deflator)
-    r_mid = cross(d, dx_mid)[:, None]
-    r = jnp.where(near, r_mid / deflator_slope, g / divisor)
-    reach_q = reach[:, None]
-    excess = jnp.where(
-        near,
-        dot(d, dx_mid)[:, None] / deflator_slope,
-        (dot(dq, own_sight) - reach_q) / divisor,
-    )
+    # The query's own curve, only where it can hide the query: a facing point of a
+    # polygon is not hidden by its own edge (the others are among the edges above), nor
+    # one of a conic by its convex curve; nor is a query already hidden tested again.
+    # So the test costs what the curved queries left are (`over_chunks`).
+    facing_queries = facing(camera, sense[curve], x_mid, dx_mid)
+    if not len(rows):
+        return facing_queries & ~blocked
+    tested = jnp.asarray(np.isin(np.arange(m), rows))[curve] & facing_queries & ~blocked
 
-    # Next to a root of p, r' = (g' - r p') / p cancels: r's rounding error (eps |d|
-    # |x - C| / |p|) is divided by p again. Within eps^(1/3) of one (6e-6 in float64,
-    # 5e-3 in float32) r' is set to 0 too: a query point 1e-10 from a node (the
-    # midpoint of an arc between two events beside corners) took a slope of -200 for
-    # 0.14 there, and its cell's interpolant a pair of crossings that hid it.
-    flat = float(jnp.finfo(u.dtype).eps) ** (1 / 3)
-    flat = (jnp.abs(u) <= flat) | (jnp.abs(1.0 - jnp.abs(u)) <= flat)
+    def own_blocks(hidden, query, live):
+        hit = _hidden_by_own_curve(
+            camera,
+            grid,
+            probes,
+            one_thread,
+            curve[query],
+            t_mid[query],
+            query_cell[query],
+            d.map(lambda a: a[query]),
+            reach[query],
+            cross(d, dx_mid)[query],
+            dot(d, dx_mid)[query],
+            None if same_piece is None else same_piece[query],
+        )
+        return hidden.at[jnp.where(live & hit, query, hidden.shape[0])].set(True, mode="drop")
 
-    dg = grid.at_nodes(lambda dx, _: cross(dq, dx.map(lambda a: a[curve])))
-    dr = jax.tree.map(lambda s: jnp.where(flat, 0.0, (s - r * deflator_slope) / divisor), dg)
-
-    def crosses_own(r, dr, h, excess, deflator, reach, r_mid, same_piece):
-        in_segment = deflated_depth(excess, deflator, reach, r, r_mid)
-        crosses = _crosses_segment(r, dr, h, in_segment)
-        if same_piece is not None:  # (the other pieces' cells are tested above)
-            crosses = crosses & same_piece
-        return fused_reduce(jnp.any, crosses)
-
-    args = (r, dr, h[curve], excess, deflator, reach_q, r_mid, same_piece)
-    own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
-
-    # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)
-    # and r at the ends of their cells; not in the query point's own cell, where r is
-    # deflated and the side of a crossing is decided as above.
-    on_own = jax.tree.map(lambda a: a[curve], probes)  # (q, r)
-    own = own | fused_reduce(
-        jnp.any,
-        on_own.valid
-        & (on_own.cell != query_cell[:, None])
-        & _grazing(
-            cross(dq, on_own.sight) * _deflator(on_own.t - t_mid[:, None]),
-            jnp.take_along_axis(r, on_own.cell, -1),
-            jnp.take_along_axis(r, on_own.cell + 1, -1),
-            dot(dq, on_own.sight),
-            reach_q,
-        ),
-        -1,
-    )
-    return facing(camera, sense[curve], x_mid, dx_mid) & ~blocked & ~own
+    size = max(1, CHUNK_ELEMENTS // grid.t.shape[1])
+    own = over_chunks(tested, size, own_blocks, jnp.zeros(t_mid.shape, bool))
+    return facing_queries & ~blocked & ~own
