@@ -673,38 +673,42 @@ def _value(scene: Scene, events: Events, objective, options: VisibilityOptions):
         pieces.append(events.nearest.t)
     if crossovers is not None:  # (pairs, m, budget): one row of m per curve
         pieces.append(jnp.moveaxis(crossovers.t, 0, 1).reshape(crossovers.t.shape[1], -1))
-    # (the cameras' events last: in a tie, the stable sort puts them after the other
-    # pieces, as the viewability lookup `_viewable` needs, which reads each union
-    # entry's column)
+    # (the cameras' events last: in a tie, they come after the other pieces, as the
+    # viewability lookup `_viewable` needs, which reads each union entry's column)
     camera_events = partitions.events  # (k, m, L)
     k, m, per_row = camera_events.shape
     others = jnp.concatenate(pieces, 1)
     rows = jnp.concatenate([others, jnp.moveaxis(camera_events, 0, 1).reshape(m, -1)], 1)
-    columns = jnp.broadcast_to(jnp.arange(rows.shape[1]), rows.shape)
-    union, column = sorted_rows(rows, columns)
-    # Padded events sit at t = 1 (the end of each row): the intervals that start before
-    # it, over the whole scene, are integrated as one flat list (at most `budget` of
-    # them). Every camera repeats the corners among its events (zero-length intervals);
-    # the closed-form events of conics and the nearest points are kept whole.
+    # Padded events sit at t = 1 (the end of each row). Every camera repeats the corners
+    # among its events (zero-length intervals); the closed-form events of conics and the
+    # nearest points are kept whole.
     per_camera = _fixed_slots(scene, camera_events, partitions.ranges) + cut
     fixed = pieces[0].shape[1] + k * per_camera
-    slots = union.shape[1]
+    slots = rows.shape[1]
     kept = m * pieces[0].shape[1] + k * (_real_fixed(scene, per_camera - cut) + m * cut)
     wedge = events.poses.half_fov is not None
     unused = k * _unused_slots(scene, partitions.shadows, options, wedge)
     budget = _flat_budget(scene, options.max_intervals, slots, fixed, kept, unused)
-    starts, ends = _intervals(union)
-    used_mask = jax.lax.stop_gradient(starts) < 1.0
-    index, filled, used = first_true(used_mask.ravel(), budget)
-    curve = index // slots
-    start = jnp.where(filled, starts.ravel()[index], 1.0)
-    end = jnp.where(filled, ends.ravel()[index], 1.0)
+    # The union is one flat list over the scene of the rows' events before t = 1 (at
+    # most `budget` of them), sorted by curve, time and column (each row's stable
+    # order), so that its sort costs what the events are, not the widest row times the
+    # curves. Each event starts an interval that ends at the next event of its curve.
+    index, filled, used = first_true((jax.lax.stop_gradient(rows) < 1.0).ravel(), budget)
+    start = jnp.where(filled, rows.ravel()[index], 1.0)
+    at = jax.lax.stop_gradient(jnp.where(start == 0.0, 0.0, start))  # (-0 and 0 tie)
+    curve, _, column, start = jax.lax.sort(
+        (jnp.where(filled, index // slots, m), at, index % slots, start), num_keys=3
+    )
+    next_on_curve = jnp.concatenate([curve[1:] == curve[:-1], jnp.zeros(1, bool)])
+    filled = curve < m
+    end = jnp.where(next_on_curve & filled, jnp.concatenate([start[1:], start[:1]]), 1.0)
+    curve = jnp.where(filled, curve, 0)
 
     seen = _viewable(
         partitions,
         curve,
         jax.lax.stop_gradient(start),
-        column.ravel()[index],
+        column,
         others.shape[1],
     )
     seen = seen & jnp.asarray(scene.observed())[curve][None] & filled[None]
