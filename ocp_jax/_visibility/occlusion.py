@@ -232,6 +232,8 @@ def _blocked_by_edges(
 def _hidden_by_own_curve(
     camera: Vec,
     grid: Samples,
+    sight: Vec,
+    h: Float[Array, "m n"],
     probes: GrazingProbes,
     one_thread: bool,
     curve: Int[Array, " q"],
@@ -244,9 +246,9 @@ def _hidden_by_own_curve(
     same_piece: Bool[Array, "q n"] | None,
 ) -> Bool[Array, " q"]:
     """Whether the query point's own curve crosses the segment from the camera to it
-    (d = m - C, reach = |d|^2, r_mid = cross(d, x'(t_mid)), slope_mid = d . x'(t_mid),
-    arrays (q,); `same_piece`: the cells of the query's smooth piece, the others being
-    tested as other curves are).
+    (`sight`: the grid's x - C, `h`: its cell widths; d = m - C, reach = |d|^2,
+    r_mid = cross(d, x'(t_mid)), slope_mid = d . x'(t_mid), arrays (q,); `same_piece`:
+    the cells of the query's smooth piece, the others being tested as other curves are).
 
     The trivial root at t_mid and its periodic images t_mid -+ 1 are deflated (the
     grid's ends are one point of the curve, and an image next to one would leave g a
@@ -257,7 +259,7 @@ def _hidden_by_own_curve(
     e = (D - reach) / p -> x'(t_mid) . d / p' there. Arrays (q, N + 2), the own curve's
     row of the grid."""
     dq = d.map(lambda a: a[:, None])
-    own_sight = sub(grid.x, camera).map(lambda a: a[curve])
+    own_sight = sight.map(lambda a: a[curve])
     g = cross(dq, own_sight)
     u = grid.t[curve] - t_mid[:, None]
     deflator = _deflator(u)
@@ -290,7 +292,7 @@ def _hidden_by_own_curve(
             crosses = crosses & same_piece
         return fused_reduce(jnp.any, crosses)
 
-    args = (r, dr, jnp.diff(grid.t)[curve], excess, deflator, reach_q, r_mid, same_piece)
+    args = (r, dr, h[curve], excess, deflator, reach_q, r_mid, same_piece)
     own = computed_on_one_thread(crosses_own, args, camera) if one_thread else crosses_own(*args)
 
     # Grazing crossings of the own curve, from r = g / p at its probes (the sign of g p)
@@ -414,11 +416,14 @@ def visible_points(
     if not len(rows):
         return facing_queries & ~blocked
     tested = jnp.asarray(np.isin(np.arange(m), rows))[curve] & facing_queries & ~blocked
+    r_mid, slope_mid = cross(d, dx_mid), dot(d, dx_mid)
 
     def own_blocks(hidden, query, live):
         hit = _hidden_by_own_curve(
             camera,
             grid,
+            sight,
+            h,
             probes,
             one_thread,
             curve[query],
@@ -426,8 +431,8 @@ def visible_points(
             query_cell[query],
             d.map(lambda a: a[query]),
             reach[query],
-            cross(d, dx_mid)[query],
-            dot(d, dx_mid)[query],
+            r_mid[query],
+            slope_mid[query],
             None if same_piece is None else same_piece[query],
         )
         return hidden.at[jnp.where(live & hit, query, hidden.shape[0])].set(True, mode="drop")
