@@ -459,3 +459,69 @@ def test_two_cameras_on_a_circle_closed_forms():
     for obj, key in (("visible_length", "vl"), ("foreshortened", "fs")):
         ref = reference_visibility(spec, USER_CAMERAS[1], obj)
         assert abs(values[key][1] / ref - 1) < 1e-10
+
+
+# ===========================================================================
+# two cameras beside one straight edge
+# ===========================================================================
+# Cameras (a, 1 + h) above the top edge y = 1, 0 <= x <= 2, of the rectangle [0, 2] x
+# [0, 1] see only that edge, where q = h^2 / (h^2 + (x - a)^2), a peak of width h: the
+# cameras' q cross where h_1^2 ((x - a_2)^2 + h_2^2) = h_2^2 ((x - a_1)^2 + h_1^2).
+EDGE_CAMERA_CASES = {  # (a, h) of each camera, tolerance of Q
+    # the near camera's peak inside the far one's: a pair of crossovers 0.24 apart inside
+    # the edge's one grid cell, F < 0 at both its ends (as dev/fuzz_scenes.py seed 38)
+    "a near camera's peak inside a far one's": ((0.8, 0.11), (1.0, 0.36), 1e-12),
+    # close to the nearest-point check's limit, where Gauss-Legendre reaches 1e-9
+    "a camera 0.1 from the edge": ((0.5, 0.1), (1.3, 0.2), 1e-9),
+    "peaks apart, one crossover": ((0.4, 0.3), (1.6, 0.25), 1e-12),
+}
+
+
+def edge_foreshortened_closed_form(first, second, width=2.0):
+    """Q = int_0^width max(q_1, q_2) dx, int q dx = h atan((x - a) / h) between the
+    crossovers."""
+    (a1, h1), (a2, h2) = first, second
+    coefficients = [
+        h1**2 - h2**2,
+        -2.0 * (h1**2 * a2 - h2**2 * a1),
+        h1**2 * (a2**2 + h2**2) - h2**2 * (a1**2 + h1**2),
+    ]
+    roots = [r.real for r in np.roots(coefficients) if abs(r.imag) < 1e-12 and 0 < r.real < width]
+    cuts = [0.0, *sorted(roots), width]
+
+    def q(x, a, h):
+        return h * h / (h * h + (x - a) ** 2)
+
+    def integral(x0, x1, a, h):
+        return h * (math.atan((x1 - a) / h) - math.atan((x0 - a) / h))
+
+    total = 0.0
+    for x0, x1 in zip(cuts, cuts[1:]):
+        mid = 0.5 * (x0 + x1)
+        a, h = first if q(mid, *first) >= q(mid, *second) else second
+        total += integral(x0, x1, a, h)
+    return total
+
+
+@pytest.mark.parametrize("case", EDGE_CAMERA_CASES)
+def test_two_cameras_beside_an_edge_closed_form(case):
+    """Foreshortened Q of two cameras beside one edge, under jit with default options,
+    against the closed form (1e-12 relative, 1e-9 for a camera near the quadrature's
+    limit), and its gradient against central
+    differences of the closed form (1e-6)."""
+    first, second, tolerance = EDGE_CAMERA_CASES[case]
+    rectangle = ocp.PiecewiseCurve.polygon(
+        jnp.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    )
+    scene = ocp.Scene([rectangle])
+    cameras = np.array([[first[0], 1.0 + first[1]], [second[0], 1.0 + second[1]]])
+    value, grad = jax.jit(jax.value_and_grad(lambda c: ocp.visibility(scene, c, FS)))(
+        jnp.asarray(cameras)
+    )
+
+    def closed_form(c):
+        return edge_foreshortened_closed_form(*((x, y - 1.0) for x, y in c))
+
+    assert abs(float(value) / closed_form(cameras) - 1) <= tolerance
+    want = H.central_differences(closed_form, cameras, 1e-7)
+    assert np.max(np.abs(np.asarray(grad) - want)) <= 1e-6 * np.max(np.abs(want))

@@ -792,9 +792,68 @@ def range_times(scene, camera: Vec, reach, samples: Samples, budget: int, iterat
     return Roots(t, valid, brackets.count, settled)
 
 
+CROSSOVER_CELLS = 4
+CROSSOVER_LEVELS = 8
+
+
+def crossover_nodes(
+    samples: Samples, cameras: Vec
+) -> tuple[Float[Array, "m k R"], Bool[Array, "m k"]]:
+    """Nodes that refine the grid where it is coarse for a camera's q: on every curve,
+    for every camera, in the `CROSSOVER_CELLS` grid cells whose chord is longest
+    relative to its distance d from the camera.
+
+    Near a camera its q changes over the camera's distance to the curve (on a straight
+    edge the foreshortening h^2 / (h^2 + s^2) of a camera at h is a peak of width h
+    about the foot of the perpendicular), which may be far shorter than a grid cell, and
+    the cubic Hermite interpolant of two cameras' q_a - q_b on the cell misses their
+    crossovers. So each such cell gets `CROSSOVER_LEVELS` nodes on either side of the
+    foot f of the camera's perpendicular on its chord, at f -+ (side) rho^-i: a
+    geometric grid toward f whose finest step is at most d / 4 (rho >= 2). Every cell it
+    makes is then shorter than its distance from f, so than its distance from the
+    camera (up to the chord's sagitta). A curve near a camera in two places (a camera in
+    a slot) gets both.
+
+    **Returns:**
+
+    - (m, k, R) nodes, R = K (2J + 1), strictly inside the grid's cells (f is kept 1e-6
+      of the cell from its ends): with the grid's nodes, which stay (the corners among
+      them), they make cells inside the grid's.
+    - Whether the camera is near the curve, (m, k): a cell's chord is longer than its
+      distance from the camera. Elsewhere the grid resolves q and needs no refinement.
+    """
+    start = samples.x.map(lambda v: v[:, None, :-1])  # (m, 1, N)
+    chord = samples.x.map(lambda v: jnp.diff(v, axis=1)[:, None])
+    to_camera = sub(cameras.map(lambda v: v[None, :, None]), start)  # (m, k, N)
+    tiny = jnp.finfo(samples.t.dtype).tiny
+    length2 = dot(chord, chord)
+    u = jnp.clip(dot(to_camera, chord) / jnp.maximum(length2, tiny), 1e-6, 1.0 - 1e-6)
+    distance = norm(sub(to_camera, chord.map(lambda v: u * v)))
+    length = jnp.sqrt(length2)
+    cells = min(CROSSOVER_CELLS, samples.t.shape[0] - 1)
+    ratio, cell = jax.lax.top_k(length / jnp.maximum(distance, tiny), cells)  # (m, k, K)
+    u, distance = (jnp.take_along_axis(a, cell, -1) for a in (u, distance))
+    length = jnp.take_along_axis(jnp.broadcast_to(length, u.shape[:2] + length.shape[2:]), cell, -1)
+    width = jnp.diff(samples.t)[cell]
+    foot = samples.t[cell] + u * width
+    sides = jnp.stack([u, 1.0 - u], -1)  # fractions of the cell, before and after f
+    rho = jnp.maximum(
+        2.0,
+        (4.0 * sides * length[..., None] / jnp.maximum(distance[..., None], tiny))
+        ** (1.0 / CROSSOVER_LEVELS),
+    )
+    levels = jnp.arange(1, CROSSOVER_LEVELS + 1, dtype=u.dtype).reshape(1, 1, 1, 1, -1)
+    steps = (sides * width[..., None])[..., None] * rho[..., None] ** -levels  # (m, k, K, 2, J)
+    direction = jnp.asarray([-1.0, 1.0], u.dtype).reshape(1, 1, 1, 2, 1)
+    ladder = foot[..., None, None] + direction * steps
+    nodes = jnp.concatenate([ladder.reshape(*foot.shape, -1), foot[..., None]], -1)
+    return nodes.reshape(*foot.shape[:2], -1), ratio[..., 0] > 1.0
+
+
 def crossover_times(
     scene,
     members: tuple[tuple[Vec, ...], tuple[Vec, ...]],
+    refinement: tuple[Float[Array, "m k R"], Bool[Array, "m k"], Int[np.ndarray, "p l2"]],
     seen: Bool[Array, "p m"],
     objective,
     samples: Samples,
@@ -810,13 +869,22 @@ def crossover_times(
     (pair, curve) items are packed and searched a chunk at a time, so that the search
     costs what the cameras see together, not every pair on every curve.
 
+    Near a camera its q changes over the camera's distance to the curve, which may be
+    far shorter than a grid cell: the grid is refined where it is coarse for the members
+    of each pair (`refinement`: every camera's `crossover_nodes` and whether it is near
+    each curve, and the 2l members of every pair). The items with a member near their
+    curve, few, are searched on the refined grid in a loop of their own.
+
     They carry no derivative: the integrand is continuous across a crossover (both
     groups' q are equal there), so the Leibniz terms of the two intervals that meet at it
     cancel (Eq. 5.9); the cut only keeps the kink out of the quadrature."""
-    scene, objective, members = jax.lax.stop_gradient((scene, objective, members))
+    scene, objective, members, refinement = jax.lax.stop_gradient(
+        (scene, objective, members, refinement)
+    )
+    refined, near, member_cameras = refinement
     pairs, m = seen.shape
     candidates = seen & jnp.asarray(scene.observed())[None]
-    size = max(1, CHUNK_ELEMENTS // samples.t.shape[0])  # items per chunk
+    near = jnp.any(near[:, member_cameras], -1).T  # (p, m)
 
     def resolved(values, slopes, scale):
         # Where the two cameras' q agree to rounding (equal cameras, plateaus of a user
@@ -826,31 +894,54 @@ def crossover_times(
         rounding = 1e3 * jnp.finfo(values.dtype).eps * scale + jnp.finfo(values.dtype).tiny
         return jnp.where(jnp.abs(values) <= rounding, rounding, values), slopes
 
-    def search(pair, curve):
-        """The roots of the items (pair, curve), index arrays (c,): arrays (c, budget)."""
+    def search(pair, curve, live, refine: bool):
+        """The roots of the items (pair, curve), index arrays (c,): arrays (c, budget), on
+        the grid or (`refine`) on the grid with its refinement for the pair's members;
+        none for the items that are not `live`."""
         group_a, group_b = (tuple(v.map(lambda a: a[pair, None]) for v in g) for g in members)
         args = (scene, curve, group_a, group_b, objective)
+
+        def function(t):
+            return resolved(*crossover_function(t, args))
 
         def values_and_slopes(dx, ddx):  # from the sampled derivatives
             x, dx, ddx = (v.map(lambda a: a[curve]) for v in (samples.x, dx, ddx))
             return resolved(*crossover_terms(objective, group_a, group_b, x, dx, ddx))
 
         nodes = samples.at_nodes(values_and_slopes)
-        values, slopes = nodes if samples.dx_end is None else zip(*nodes)
-        probes = dip_probes(
-            lambda t: resolved(*crossover_function(t, args)), samples.t, values, slopes
-        )
+        t = samples.t
+        if refine:
+            # (right limits, left limits) at the grid's nodes, then the refinement's
+            # nodes, which lie inside cells (no corners), in the order of t
+            starts, ends = (nodes, nodes) if samples.dx_end is None else nodes
+            extra = refined[curve[:, None], member_cameras[pair]].reshape(curve.shape[0], -1)
+            at_extra = function(extra)
+            t = jnp.concatenate([jnp.broadcast_to(t, (curve.shape[0], t.shape[0])), extra], 1)
+            order = jnp.argsort(t, axis=1)
+            t = jnp.take_along_axis(t, order, 1)
+
+            def merged(at_grid):
+                return tuple(
+                    jnp.take_along_axis(jnp.concatenate([g, e], 1), order, 1)
+                    for g, e in zip(at_grid, at_extra)
+                )
+
+            nodes = merged(starts), merged(ends)
+        values, slopes = nodes if samples.dx_end is None and not refine else zip(*nodes)
+        probes = dip_probes(function, t, values, slopes)
         values, slopes, probes = jax.tree.map(lambda a: a[:, None], (values, slopes, probes))
-        brackets = grid_brackets(samples.t, values, slopes, budget, probes=probes)
+        t = t[:, None] if refine else t
+        keep = jnp.broadcast_to(live[:, None, None], probes[0].shape)
+        brackets = grid_brackets(t, values, slopes, budget, keep, probes=probes)
         t, valid, settled = solve_roots(
             crossover_function, args, brackets, iterations, 1.0, scene.costly_evaluation()
         )
         return t, valid, brackets.count, settled
 
-    def step(carry, item, live):
+    def step(carry, item, live, refine=False):
         t, valid, found, settled = carry
         pair, curve = item // m, item % m
-        roots, ok, number, done = search(pair, curve)
+        roots, ok, number, done = search(pair, curve, live, refine)
         pair = jnp.where(live, pair, pairs)  # (out of range: dropped)
         return (
             t.at[pair, curve].set(roots, mode="drop"),
@@ -865,4 +956,10 @@ def crossover_times(
         jnp.zeros((pairs, m), int),
         jnp.asarray(True),
     )
-    return Roots(*over_chunks(candidates.ravel(), size, step, init))
+    # items per chunk: a node of the grid or of the refinement is an element
+    size = max(1, CHUNK_ELEMENTS // samples.t.shape[0])
+    coarse = over_chunks((candidates & ~near).ravel(), size, step, init)
+    elements = samples.t.shape[0] + member_cameras.shape[1] * refined.shape[2]
+    size = max(1, CHUNK_ELEMENTS // (8 * elements))  # (small: a lone item computes little)
+    fine = functools.partial(step, refine=True)
+    return Roots(*over_chunks((candidates & near).ravel(), size, fine, coarse, sparse=True))

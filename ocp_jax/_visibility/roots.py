@@ -245,13 +245,14 @@ def first_true(mask: Bool[Array, "*batch n"], size: int):
     return jnp.where(filled, index, 0), filled, count
 
 
-def over_chunks(mask: Bool[Array, " n"], size: int, step, init):
+def over_chunks(mask: Bool[Array, " n"], size: int, step, init, sparse: bool = False):
     """Folds `carry = step(carry, index, live)` over the indices of the True entries of
     `mask`, packed `size` at a time (`index`, `live`: arrays (size,), `live` False on the
     padding of the last chunk), for as many chunks as there are entries: the work
     follows the count, not the mask's length. A mask no longer than a chunk is one
-    chunk, unpacked."""
-    if mask.shape[0] <= size:
+    chunk, unpacked, unless it is `sparse` (mostly False: then no chunk runs where no
+    entry is True)."""
+    if mask.shape[0] <= size and not sparse:
         return step(init, jnp.arange(mask.shape[0]), mask)
     index, _, count = first_true(mask, mask.shape[0] + size)
 

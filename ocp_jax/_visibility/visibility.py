@@ -62,6 +62,7 @@ from .events import (
     Roots,
     Samples,
     bounding_discs,
+    crossover_nodes,
     crossover_times,
     grazing_probes,
     grid_pieces,
@@ -608,9 +609,11 @@ def _events(scene: Scene, poses: Camera, objective, options: VisibilityOptions) 
         # A group sees something of a curve where each of its cameras does.
         sees = jnp.all(jnp.any(partitions.visible, -1)[groups], 1)  # (G, m)
         first, second = groups[pairs[:, 0]], groups[pairs[:, 1]]
+        members = np.concatenate([first, second], 1)  # (pairs, 2l) camera indices
         crossovers = crossover_times(
             scene,
             (group_members(cameras, first), group_members(cameras, second)),
+            (*crossover_nodes(samples, cameras), members),
             sees[pairs[:, 0]] & sees[pairs[:, 1]],
             objective,
             samples,
