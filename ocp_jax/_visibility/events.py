@@ -333,6 +333,16 @@ def bounding_discs(samples: Samples) -> tuple[Vec, Float[Array, " m"]]:
     return centre, fused_reduce(jnp.max, reach, 1) + fused_reduce(jnp.max, step, 1)
 
 
+def foot_on_chord(offset: Vec, chord: Vec, margin: float = 0.0):
+    """The foot of the perpendicular from a point on a segment (`offset`: the point less
+    the segment's start; `chord`: its end less its start): the fraction u along the
+    chord, clipped to [margin, 1 - margin], and the point's distance to x(u)."""
+    length2 = dot(chord, chord)
+    u = dot(offset, chord) / jnp.maximum(length2, jnp.finfo(length2.dtype).tiny)
+    u = jnp.clip(u, margin, 1.0 - margin)
+    return u, norm(sub(offset, chord.map(lambda v: u * v)))
+
+
 def inscribed_radii(samples: Samples, centre: Vec, straight: np.ndarray) -> Float[Array, " m"]:
     """The radius of a disc around each `centre` that lies inside its curve, 0 where none
     is found: the centre's distance to the polygon of grid points, less the longest step
@@ -343,10 +353,7 @@ def inscribed_radii(samples: Samples, centre: Vec, straight: np.ndarray) -> Floa
     a, b = p.map(lambda v: v[:, :-1]), p.map(lambda v: v[:, 1:])
     winding = jnp.sum(jnp.arctan2(cross(a, b), dot(a, b)), 1) / (2 * jnp.pi)
     edge = sub(b, a)
-    along = jnp.clip(
-        -dot(a, edge) / jnp.maximum(dot(edge, edge), jnp.finfo(edge.x.dtype).tiny), 0.0, 1.0
-    )
-    nearest = jnp.min(norm(add(a, edge.map(lambda v: along * v))), 1)
+    nearest = jnp.min(foot_on_chord(a.map(jnp.negative), edge)[1], 1)
     radius = nearest - jnp.where(straight, 0.0, jnp.max(norm(edge), 1))
     return jnp.where((jnp.abs(winding) > 0.5) & (radius > 0), radius, 0.0)
 
@@ -825,23 +832,16 @@ def crossover_nodes(
     start = samples.x.map(lambda v: v[:, None, :-1])  # (m, 1, N)
     chord = samples.x.map(lambda v: jnp.diff(v, axis=1)[:, None])
     to_camera = sub(cameras.map(lambda v: v[None, :, None]), start)  # (m, k, N)
-    tiny = jnp.finfo(samples.t.dtype).tiny
-    length2 = dot(chord, chord)
-    u = jnp.clip(dot(to_camera, chord) / jnp.maximum(length2, tiny), 1e-6, 1.0 - 1e-6)
-    distance = norm(sub(to_camera, chord.map(lambda v: u * v)))
-    length = jnp.sqrt(length2)
+    u, distance = foot_on_chord(to_camera, chord, margin=1e-6)
+    ratio = norm(chord) / jnp.maximum(distance, jnp.finfo(distance.dtype).tiny)
     cells = min(CROSSOVER_CELLS, samples.t.shape[0] - 1)
-    ratio, cell = jax.lax.top_k(length / jnp.maximum(distance, tiny), cells)  # (m, k, K)
-    u, distance = (jnp.take_along_axis(a, cell, -1) for a in (u, distance))
-    length = jnp.take_along_axis(jnp.broadcast_to(length, u.shape[:2] + length.shape[2:]), cell, -1)
+    ratio, cell = jax.lax.top_k(ratio, cells)  # (m, k, K)
+    u = jnp.take_along_axis(u, cell, -1)
     width = jnp.diff(samples.t)[cell]
     foot = samples.t[cell] + u * width
     sides = jnp.stack([u, 1.0 - u], -1)  # fractions of the cell, before and after f
-    rho = jnp.maximum(
-        2.0,
-        (4.0 * sides * length[..., None] / jnp.maximum(distance[..., None], tiny))
-        ** (1.0 / CROSSOVER_LEVELS),
-    )
+    # the finest step, side rho^-J of the chord, at most d / 4
+    rho = jnp.maximum(2.0, (4.0 * sides * ratio[..., None]) ** (1.0 / CROSSOVER_LEVELS))
     levels = jnp.arange(1, CROSSOVER_LEVELS + 1, dtype=u.dtype).reshape(1, 1, 1, 1, -1)
     steps = (sides * width[..., None])[..., None] * rho[..., None] ** -levels  # (m, k, K, 2, J)
     direction = jnp.asarray([-1.0, 1.0], u.dtype).reshape(1, 1, 1, 2, 1)
@@ -908,12 +908,11 @@ def crossover_times(
             x, dx, ddx = (v.map(lambda a: a[curve]) for v in (samples.x, dx, ddx))
             return resolved(*crossover_terms(objective, group_a, group_b, x, dx, ddx))
 
+        # (F, F') at the grid's nodes: right limits and left limits
         nodes = samples.at_nodes(values_and_slopes)
+        starts, ends = (nodes, nodes) if samples.dx_end is None else nodes
         t = samples.t
-        if refine:
-            # (right limits, left limits) at the grid's nodes, then the refinement's
-            # nodes, which lie inside cells (no corners), in the order of t
-            starts, ends = (nodes, nodes) if samples.dx_end is None else nodes
+        if refine:  # and at the refinement's nodes, inside cells (no corners), by t
             extra = refined[curve[:, None], member_cameras[pair]].reshape(curve.shape[0], -1)
             at_extra = function(extra)
             t = jnp.concatenate([jnp.broadcast_to(t, (curve.shape[0], t.shape[0])), extra], 1)
@@ -926,8 +925,8 @@ def crossover_times(
                     for g, e in zip(at_grid, at_extra)
                 )
 
-            nodes = merged(starts), merged(ends)
-        values, slopes = nodes if samples.dx_end is None and not refine else zip(*nodes)
+            starts, ends = merged(starts), merged(ends)
+        values, slopes = zip(starts, ends)
         probes = dip_probes(function, t, values, slopes)
         values, slopes, probes = jax.tree.map(lambda a: a[:, None], (values, slopes, probes))
         t = t[:, None] if refine else t
